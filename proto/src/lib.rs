@@ -1,0 +1,9 @@
+//! vlnav's gRPC contracts. `proto/vlnav/v1/*.proto` is the single source of
+//! truth; this crate only exposes what `build.rs` generates from it.
+
+pub mod v1 {
+    tonic::include_proto!("vlnav.v1");
+}
+
+/// Encoded `FileDescriptorSet` of every `vlnav.v1` file, for server reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/vlnav_descriptor.bin"));
