@@ -1,1 +1,16 @@
-//! vlnav-runtime
+//! What every vlnav gRPC server shares, and nothing more:
+//!
+//! - [`server`]: bootstrap — health (`grpc.health.v1`), reflection v1 and
+//!   v1alpha, tonic's request timeout, message size limits, per-method
+//!   telemetry and graceful shutdown;
+//! - [`telemetry`]: tracing + OpenTelemetry (OTLP, W3C trace context);
+//! - [`client`]: channels whose requests carry the caller's trace context;
+//! - [`actor`]: the request/reply helper every service actor uses.
+
+pub mod actor;
+pub mod client;
+pub mod server;
+pub mod telemetry;
+
+pub use server::{ServerConfig, ServiceSet, ports, serve, serve_main, shutdown_signal};
+pub use tokio_util::sync::CancellationToken;

@@ -1,0 +1,315 @@
+//! Server bootstrap shared by every vlnav service: one call serves a set of
+//! tonic services with health, reflection (v1 and v1alpha — grpcurl 1.8.6
+//! speaks only v1alpha), tonic's own request timeout (it answers
+//! DEADLINE_EXCEEDED instead of resetting the stream), a telemetry layer and
+//! graceful shutdown.
+
+use std::collections::HashMap;
+use std::convert::Infallible;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::task::{Context, Poll};
+use std::time::{Duration, Instant};
+
+use futures::future::BoxFuture;
+use opentelemetry::KeyValue;
+use opentelemetry::propagation::Extractor;
+use tokio::net::TcpListener;
+use tokio_stream::wrappers::TcpListenerStream;
+use tokio_util::sync::CancellationToken;
+use tonic::body::Body;
+use tonic::server::NamedService;
+use tonic::service::RoutesBuilder;
+use tracing::Instrument;
+use tracing_opentelemetry::OpenTelemetrySpanExt;
+
+/// Settings every server takes (flags or environment).
+#[derive(clap::Args, Clone, Debug)]
+pub struct ServerConfig {
+    /// Address to listen on (default: the service's own port on 127.0.0.1).
+    #[arg(long, env = "VLNAV_LISTEN")]
+    pub listen: Option<SocketAddr>,
+    /// Requests running longer than this get DEADLINE_EXCEEDED, seconds.
+    #[arg(long, env = "VLNAV_REQUEST_TIMEOUT_S", default_value_t = 30.0)]
+    pub request_timeout_s: f64,
+    /// Largest accepted or sent gRPC message, bytes.
+    #[arg(long, env = "VLNAV_MAX_MESSAGE_BYTES", default_value_t = 16 * 1024 * 1024)]
+    pub max_message_bytes: usize,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        Self { listen: None, request_timeout_s: 30.0, max_message_bytes: 16 * 1024 * 1024 }
+    }
+}
+
+impl ServerConfig {
+    /// The configured address, or `127.0.0.1:default_port`.
+    pub fn listen_addr(&self, default_port: u16) -> SocketAddr {
+        self.listen.unwrap_or_else(|| SocketAddr::from(([127, 0, 0, 1], default_port)))
+    }
+}
+
+/// The tonic services one server hosts, each with the pipeline stage its
+/// spans are named after ("plan", "detect", "local-plan", …).
+#[derive(Default)]
+pub struct ServiceSet {
+    routes: RoutesBuilder,
+    stages: HashMap<&'static str, &'static str>,
+}
+
+impl ServiceSet {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds a service; its server spans are named `stage`.
+    pub fn add<S>(mut self, stage: &'static str, svc: S) -> Self
+    where
+        S: tower::Service<http::Request<Body>, Response = http::Response<Body>, Error = Infallible>
+            + NamedService
+            + Clone
+            + Send
+            + Sync
+            + 'static,
+        S::Future: Send + 'static,
+    {
+        self.stages.insert(S::NAME, stage);
+        self.routes.add_service(svc);
+        self
+    }
+
+    pub fn names(&self) -> impl Iterator<Item = &'static str> + '_ {
+        self.stages.keys().copied()
+    }
+}
+
+/// Serves `services` on `listener` until `shutdown` is cancelled, then drains
+/// in-flight requests. Health reports SERVING for each service (and for the
+/// server as a whole, name "") until shutdown begins.
+pub async fn serve(
+    cfg: &ServerConfig,
+    listener: TcpListener,
+    services: ServiceSet,
+    shutdown: CancellationToken,
+) -> anyhow::Result<()> {
+    let (health, health_svc) = tonic_health::server::health_reporter();
+    let mut names: Vec<&'static str> = services.names().collect();
+    names.sort();
+    let reflection = || {
+        names.iter().fold(
+            tonic_reflection::server::Builder::configure()
+                .register_encoded_file_descriptor_set(vlnav_proto::FILE_DESCRIPTOR_SET)
+                .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+                .with_service_name("grpc.health.v1.Health"),
+            |b, name| b.with_service_name(*name),
+        )
+    };
+    let reflection_v1 = reflection().build_v1()?;
+    let reflection_v1alpha = reflection().build_v1alpha()?;
+    for name in &names {
+        health.set_service_status(*name, tonic_health::ServingStatus::Serving).await;
+    }
+    health.set_service_status("", tonic_health::ServingStatus::Serving).await;
+
+    let mut stages = services.stages;
+    stages.insert("grpc.health.v1.Health", "health");
+    stages.insert("grpc.reflection.v1.ServerReflection", "reflection");
+    stages.insert("grpc.reflection.v1alpha.ServerReflection", "reflection");
+    let mut routes = services.routes;
+    routes.add_service(health_svc).add_service(reflection_v1).add_service(reflection_v1alpha);
+
+    let addr = listener.local_addr()?;
+    tracing::info!(%addr, services = ?names, "serving");
+    let drain = {
+        let shutdown = shutdown.clone();
+        let health = health.clone();
+        let names = names.clone();
+        async move {
+            shutdown.cancelled().await;
+            for name in names {
+                health.set_service_status(name, tonic_health::ServingStatus::NotServing).await;
+            }
+            health.set_service_status("", tonic_health::ServingStatus::NotServing).await;
+            tracing::info!(%addr, "shutting down, draining in-flight requests");
+        }
+    };
+    tonic::transport::Server::builder()
+        .timeout(Duration::from_secs_f64(cfg.request_timeout_s.max(0.001)))
+        .tcp_nodelay(true)
+        .layer(TelemetryLayer { stages: Arc::new(stages) })
+        .add_routes(routes.routes())
+        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), drain)
+        .await?;
+    Ok(())
+}
+
+/// Completes on SIGINT or SIGTERM (what Kubernetes sends before a kill).
+pub async fn shutdown_signal() {
+    let ctrl_c = tokio::signal::ctrl_c();
+    #[cfg(unix)]
+    {
+        let mut term = match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(s) => s,
+            Err(_) => {
+                let _ = ctrl_c.await;
+                return;
+            }
+        };
+        tokio::select! {
+            _ = ctrl_c => {},
+            _ = term.recv() => {},
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = ctrl_c.await;
+}
+
+/// Per-request server span (named by stage, parented on the caller's W3C
+/// trace context) and the `rpc.server.duration` metric by method and status.
+#[derive(Clone)]
+struct TelemetryLayer {
+    stages: Arc<HashMap<&'static str, &'static str>>,
+}
+
+impl<S> tower::Layer<S> for TelemetryLayer {
+    type Service = TelemetryService<S>;
+    fn layer(&self, inner: S) -> Self::Service {
+        TelemetryService { inner, stages: self.stages.clone() }
+    }
+}
+
+#[derive(Clone)]
+struct TelemetryService<S> {
+    inner: S,
+    stages: Arc<HashMap<&'static str, &'static str>>,
+}
+
+struct HeaderExtractor<'a>(&'a http::HeaderMap);
+
+impl Extractor for HeaderExtractor<'_> {
+    fn get(&self, key: &str) -> Option<&str> {
+        self.0.get(key).and_then(|v| v.to_str().ok())
+    }
+    fn keys(&self) -> Vec<&str> {
+        self.0.keys().map(|k| k.as_str()).collect()
+    }
+}
+
+fn duration_histogram() -> &'static opentelemetry::metrics::Histogram<f64> {
+    static H: std::sync::OnceLock<opentelemetry::metrics::Histogram<f64>> = std::sync::OnceLock::new();
+    H.get_or_init(|| {
+        opentelemetry::global::meter("vlnav")
+            .f64_histogram("rpc.server.duration")
+            .with_unit("ms")
+            .with_description("gRPC server latency by method and status code")
+            .build()
+    })
+}
+
+impl<S, B> tower::Service<http::Request<B>> for TelemetryService<S>
+where
+    S: tower::Service<http::Request<B>, Response = http::Response<Body>> + Clone + Send + 'static,
+    S::Future: Send + 'static,
+    B: Send + 'static,
+{
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = BoxFuture<'static, Result<Self::Response, Self::Error>>;
+
+    fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, req: http::Request<B>) -> Self::Future {
+        let path = req.uri().path().to_string();
+        let (service, method) = path.trim_start_matches('/').split_once('/').unwrap_or((path.as_str(), ""));
+        let (service, method) = (service.to_string(), method.to_string());
+        let stage = self.stages.get(service.as_str()).copied().unwrap_or("grpc");
+        let quiet = matches!(stage, "health" | "reflection");
+        let parent = opentelemetry::global::get_text_map_propagator(|p| p.extract(&HeaderExtractor(req.headers())));
+        let span = if quiet {
+            tracing::debug_span!("grpc", otel.name = stage, rpc.service = %service, rpc.method = %method)
+        } else {
+            tracing::info_span!(
+                "grpc",
+                otel.name = stage,
+                otel.kind = "server",
+                rpc.system = "grpc",
+                rpc.service = %service,
+                rpc.method = %method,
+                rpc.grpc.status_code = tracing::field::Empty,
+            )
+        };
+        let _ = span.set_parent(parent);
+        // Clone-and-swap keeps the service that was polled ready for this call.
+        let clone = self.inner.clone();
+        let mut inner = std::mem::replace(&mut self.inner, clone);
+        let started = Instant::now();
+        Box::pin(
+            async move {
+                let result = inner.call(req).await;
+                let code = match &result {
+                    // Errors are trailers-only responses: grpc-status is in the headers.
+                    Ok(resp) => resp
+                        .headers()
+                        .get("grpc-status")
+                        .and_then(|v| v.to_str().ok())
+                        .and_then(|v| v.parse::<i32>().ok())
+                        .unwrap_or(0),
+                    Err(_) => 2,
+                };
+                tracing::Span::current().record("rpc.grpc.status_code", code);
+                if !quiet {
+                    duration_histogram().record(
+                        started.elapsed().as_secs_f64() * 1e3,
+                        &[
+                            KeyValue::new("rpc.service", service),
+                            KeyValue::new("rpc.method", method),
+                            KeyValue::new("rpc.grpc.status_code", code as i64),
+                        ],
+                    );
+                }
+                result
+            }
+            .instrument(span),
+        )
+    }
+}
+
+/// The whole `main` of a standalone service: telemetry, bind, serve until
+/// SIGINT/SIGTERM, drain. `build` loads models and spawns actors.
+pub async fn serve_main<F>(service_name: &str, default_port: u16, cfg: ServerConfig, build: F) -> anyhow::Result<()>
+where
+    F: std::future::Future<Output = anyhow::Result<ServiceSet>>,
+{
+    let telemetry = crate::telemetry::init(service_name)?;
+    let services = build.await?;
+    let addr = cfg.listen_addr(default_port);
+    let listener = TcpListener::bind(addr)
+        .await
+        .map_err(|e| anyhow::anyhow!("{service_name}: cannot listen on {addr}: {e}"))?;
+    let token = CancellationToken::new();
+    let trigger = token.clone();
+    tokio::spawn(async move {
+        shutdown_signal().await;
+        trigger.cancel();
+    });
+    let result = serve(&cfg, listener, services, token).await;
+    telemetry.flush();
+    result
+}
+
+/// Default ports of the standalone servers (all on 127.0.0.1 unless configured).
+pub mod ports {
+    pub const GATEWAY: u16 = 50051;
+    pub const INGRESS: u16 = 50052;
+    pub const PLANNER: u16 = 50053;
+    pub const DETECTOR: u16 = 50054;
+    pub const REID: u16 = 50055;
+    pub const SEGMENTER: u16 = 50056;
+    pub const SUBGOAL: u16 = 50057;
+    pub const LOCAL_PLANNER: u16 = 50058;
+    /// OTLP/gRPC trace receiver built into `vlnav up`.
+    pub const TRACE_RECEIVER: u16 = 4317;
+}
