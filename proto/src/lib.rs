@@ -1,6 +1,8 @@
 //! vlnav's gRPC contracts. `proto/vlnav/v1/*.proto` is the single source of
 //! truth; this crate only exposes what `build.rs` generates from it.
 
+pub mod coco;
+
 pub mod v1 {
     tonic::include_proto!("vlnav.v1");
 }
