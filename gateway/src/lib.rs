@@ -1,1 +1,22 @@
-//! vlnav-gateway
+//! The vlnav gateway: the public `MissionService`, the `FleetService` edge
+//! agents attach to, and one mission-executor actor per robot that runs a
+//! validated plan step by step through the pipeline services.
+//!
+//! - [`frames`]: pure checks of what edge agents send (sizes, finiteness, time order);
+//! - [`executor`]: the step state machine (MOVE, FIND, FOLLOW, RETURN, exploration,
+//!   clarification) driven by sensor frames and their timestamps;
+//! - [`pipeline`]: the gRPC clients of the stage services;
+//! - [`hub`]: mission records, event logs and watchers, persisted in [`store`];
+//! - [`robot`]: the per-robot actor that owns the attach stream and the executor;
+//! - [`api`]: the thin tonic layer of MissionService and FleetService.
+
+pub mod api;
+pub mod config;
+pub mod executor;
+pub mod frames;
+pub mod hub;
+pub mod pipeline;
+pub mod robot;
+pub mod store;
+
+pub use config::GatewayOptions;

@@ -62,7 +62,16 @@ pub fn init(default_service_name: &str) -> anyhow::Result<Telemetry> {
     if let Some(endpoint) = otlp_endpoint() {
         use opentelemetry_otlp::WithExportConfig;
         let spans = opentelemetry_otlp::SpanExporter::builder().with_tonic().with_endpoint(endpoint.clone()).build()?;
-        tracer_builder = tracer_builder.with_batch_exporter(spans);
+        // A mission emits thousands of spans in seconds of lockstep simulation:
+        // a deep queue and a short delay keep them all.
+        let batch = opentelemetry_sdk::trace::BatchConfigBuilder::default()
+            .with_max_queue_size(1 << 16)
+            .with_max_export_batch_size(2048)
+            .with_scheduled_delay(std::time::Duration::from_millis(200))
+            .build();
+        let processor =
+            opentelemetry_sdk::trace::BatchSpanProcessor::builder(spans).with_batch_config(batch).build();
+        tracer_builder = tracer_builder.with_span_processor(processor);
         let metrics = opentelemetry_otlp::MetricExporter::builder().with_tonic().with_endpoint(endpoint).build()?;
         let mp = SdkMeterProvider::builder().with_resource(resource).with_periodic_exporter(metrics).build();
         opentelemetry::global::set_meter_provider(mp.clone());

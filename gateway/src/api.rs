@@ -1,0 +1,465 @@
+//! The thin tonic layer of the gateway: validates requests, talks to the
+//! mission hub and the robot actors, and maps every failure to a status a
+//! person can act on.
+
+use std::pin::Pin;
+use std::sync::Arc;
+
+use futures::Stream;
+use tokio::sync::{broadcast, mpsc};
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::{Request, Response, Status, Streaming};
+use tracing::Instrument;
+use vlnav_proto::v1::{
+    AnswerClarificationRequest, AnswerClarificationResponse, Audio, AudioChunk, AudioFormat, CancelMissionRequest,
+    ClarificationNeeded, EdgeMessage, Finished, GatewayCommand, GetMissionRequest, ListMissionsRequest,
+    ListMissionsResponse, ListRobotsRequest, ListRobotsResponse, Mission, MissionEvent, MissionState, PlanReady,
+    PlanRequest, SubmitMissionRequest, SubmitMissionResponse, Transcribed, WatchMissionRequest, answer_clarification_response,
+    edge_message, fleet_service_server::{FleetService, FleetServiceServer}, mission_event::Kind,
+    mission_service_server::{MissionService, MissionServiceServer}, plan_response, submit_mission_request,
+    submit_mission_response,
+};
+use vlnav_runtime::{ServerConfig, ServiceSet};
+
+use crate::config::GatewayOptions;
+use crate::executor::MissionRun;
+use crate::frames::{self, FrameError};
+use crate::hub::{Hub, is_terminal};
+use crate::pipeline::Pipeline;
+use crate::robot::{Fleet, RobotMsg};
+use crate::store::Store;
+
+/// Longest accepted typed instruction, bytes.
+pub const MAX_INSTRUCTION_BYTES: usize = 4096;
+/// Audio is streamed to ingress in chunks of this size.
+const AUDIO_CHUNK: usize = 64 * 1024;
+
+#[derive(Clone)]
+pub struct Gateway {
+    fleet: Arc<Fleet>,
+}
+
+impl Gateway {
+    pub fn new(opts: &GatewayOptions) -> anyhow::Result<Self> {
+        let store = Store::open(&opts.data_dir)?;
+        let hub = Hub::open(store)?;
+        let pipeline = Pipeline::connect(opts)?;
+        Ok(Self { fleet: Fleet::new(hub, pipeline, opts.executor.clone()) })
+    }
+
+    pub fn fleet(&self) -> &Arc<Fleet> {
+        &self.fleet
+    }
+
+    fn hub(&self) -> &Arc<Hub> {
+        self.fleet.hub()
+    }
+
+    fn pipeline(&self) -> &Pipeline {
+        self.fleet.pipeline()
+    }
+
+    /// MissionService and FleetService, ready for `vlnav_runtime::serve`.
+    pub fn services(&self, server: &ServerConfig) -> ServiceSet {
+        let max = server.max_message_bytes;
+        ServiceSet::new()
+            .add(
+                "mission-api",
+                MissionServiceServer::new(self.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
+            )
+            .add("fleet", FleetServiceServer::new(self.clone()).max_decoding_message_size(max).max_encoding_message_size(max))
+    }
+
+    fn mission(&self, id: &str) -> Result<Mission, Status> {
+        if id.trim().is_empty() {
+            return Err(Status::invalid_argument("mission_id is empty"));
+        }
+        self.hub().get(id).ok_or_else(|| Status::not_found(format!("no mission with id '{id}'; ListMissions shows the known ones")))
+    }
+
+    fn fail(&self, id: &str, reason: String) {
+        let finished = Finished { state: MissionState::Failed as i32, reason, metrics: None };
+        if let Err(e) = self.hub().record(id, 0.0, Some(Kind::Finished(finished)), |_| {}) {
+            tracing::error!(mission = %id, "cannot record failure: {e}");
+        }
+    }
+
+    async fn transcribe(&self, audio: Audio) -> Result<vlnav_proto::v1::Transcript, Status> {
+        let format = audio.format;
+        let rate = audio.sample_rate;
+        let chunks: Vec<AudioChunk> = audio
+            .data
+            .chunks(AUDIO_CHUNK)
+            .enumerate()
+            .map(|(i, c)| AudioChunk {
+                format: if i == 0 { format } else { 0 },
+                sample_rate: if i == 0 { rate } else { 0 },
+                data: c.to_vec(),
+            })
+            .collect();
+        let resp = self.pipeline().ingress.clone().transcribe(tokio_stream::iter(chunks)).await?;
+        Ok(resp.into_inner())
+    }
+
+    async fn submit(&self, req: SubmitMissionRequest) -> Result<SubmitMissionResponse, Status> {
+        let robot_id = req.robot_id.trim().to_string();
+        if robot_id.is_empty() && !req.dry_run {
+            return Err(Status::invalid_argument("robot_id is empty; ListRobots shows the connected robots"));
+        }
+        match &req.instruction {
+            None => return Err(Status::invalid_argument("the instruction is missing: set `text` or `audio`")),
+            Some(submit_mission_request::Instruction::Text(t)) if t.trim().is_empty() => {
+                return Err(Status::invalid_argument("the instruction text is empty; say what the robot should do"));
+            }
+            Some(submit_mission_request::Instruction::Text(t)) if t.len() > MAX_INSTRUCTION_BYTES => {
+                return Err(Status::invalid_argument(format!(
+                    "the instruction is {} bytes; at most {MAX_INSTRUCTION_BYTES} are accepted",
+                    t.len()
+                )));
+            }
+            Some(submit_mission_request::Instruction::Audio(a)) if a.data.is_empty() => {
+                return Err(Status::invalid_argument("the audio is empty"));
+            }
+            Some(submit_mission_request::Instruction::Audio(a))
+                if !matches!(AudioFormat::try_from(a.format), Ok(AudioFormat::Wav | AudioFormat::Pcm16Mono)) =>
+            {
+                return Err(Status::invalid_argument("audio.format must be AUDIO_FORMAT_WAV or AUDIO_FORMAT_PCM16_MONO"));
+            }
+            _ => {}
+        }
+        let mission_id = format!("m-{}", uuid::Uuid::new_v4().simple());
+        if !req.dry_run {
+            self.fleet.reserve(&robot_id, &mission_id).await?;
+        }
+        let span = tracing::info_span!("mission", mission.id = %mission_id, robot.id = %robot_id, dry_run = req.dry_run);
+        let trace_id = {
+            use opentelemetry::trace::TraceContextExt;
+            use tracing_opentelemetry::OpenTelemetrySpanExt;
+            span.context().span().span_context().trace_id().to_string()
+        };
+        let text = match &req.instruction {
+            Some(submit_mission_request::Instruction::Text(t)) => t.trim().to_string(),
+            _ => String::new(),
+        };
+        let record = Mission {
+            mission_id: mission_id.clone(),
+            robot_id: robot_id.clone(),
+            instruction: text.clone(),
+            state: MissionState::Pending as i32,
+            dry_run: req.dry_run,
+            created_unix: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map(|d| d.as_secs_f64())
+                .unwrap_or(0.0),
+            trace_id,
+            ..Default::default()
+        };
+        if let Err(e) = self.hub().create(record) {
+            self.fleet.release(&robot_id, &mission_id).await;
+            return Err(Status::internal(e.to_string()));
+        }
+        let result = self.plan_and_start(&mission_id, &robot_id, req, text, span.clone()).instrument(span).await;
+        if let Err(status) = &result {
+            self.fleet.release(&robot_id, &mission_id).await;
+            self.fail(&mission_id, format!("could not be planned: {}", status.message()));
+        }
+        result
+    }
+
+    async fn plan_and_start(
+        &self,
+        mission_id: &str,
+        robot_id: &str,
+        req: SubmitMissionRequest,
+        mut text: String,
+        span: tracing::Span,
+    ) -> Result<SubmitMissionResponse, Status> {
+        let hub = self.hub();
+        if let Some(submit_mission_request::Instruction::Audio(audio)) = req.instruction {
+            let transcript = self.transcribe(audio).await?;
+            text = transcript.text.trim().to_string();
+            let t = text.clone();
+            hub.record(
+                mission_id,
+                0.0,
+                Some(Kind::Transcribed(Transcribed { transcript: text.clone(), audio_seconds: transcript.audio_seconds })),
+                move |m| m.instruction = t,
+            )
+            .map_err(|e| Status::internal(e.to_string()))?;
+            if text.is_empty() {
+                return Err(Status::invalid_argument("no speech was recognised in the audio"));
+            }
+        }
+        let planned = self.pipeline().planner.clone().plan(PlanRequest { instruction: text.clone(), backend: String::new() }).await?.into_inner();
+        let mut response = SubmitMissionResponse {
+            mission_id: mission_id.to_string(),
+            transcript: text.clone(),
+            planner_backend: planned.backend.clone(),
+            plan_json: planned.plan_json.clone(),
+            ..Default::default()
+        };
+        let (plan, clarification) = match planned.outcome {
+            Some(plan_response::Outcome::Plan(p)) => (p, None),
+            Some(plan_response::Outcome::Clarification(c)) => (Default::default(), Some(c)),
+            None => return Err(Status::internal("the planner returned neither a plan nor a question")),
+        };
+        let backend = planned.backend.clone();
+        let plan_json = planned.plan_json.clone();
+        match &clarification {
+            None => {
+                let (p, pj, b) = (plan.clone(), plan_json.clone(), backend.clone());
+                hub.record(
+                    mission_id,
+                    0.0,
+                    Some(Kind::Plan(PlanReady { plan: Some(plan.clone()), plan_json: plan_json.clone(), backend: backend.clone() })),
+                    move |m| {
+                        m.plan = Some(p);
+                        m.plan_json = pj;
+                        m.planner_backend = b;
+                    },
+                )
+            }
+            Some(c) => {
+                let c2 = c.clone();
+                hub.record(
+                    mission_id,
+                    0.0,
+                    Some(Kind::ClarificationNeeded(ClarificationNeeded { index: 0, clarification: Some(c.clone()) })),
+                    move |m| {
+                        m.clarification = Some(c2);
+                        if !m.dry_run {
+                            m.state = MissionState::AwaitingClarification as i32;
+                        }
+                    },
+                )
+            }
+        }
+        .map_err(|e| Status::internal(e.to_string()))?;
+        if req.dry_run {
+            let finished = Finished {
+                state: MissionState::Planned as i32,
+                reason: if clarification.is_some() { "dry run: the planner needs an answer first".into() } else { "dry run: planned and validated, nothing moved".into() },
+                metrics: None,
+            };
+            hub.record(mission_id, 0.0, Some(Kind::Finished(finished)), |_| {}).map_err(|e| Status::internal(e.to_string()))?;
+            response.state = MissionState::Planned as i32;
+        } else {
+            let run = MissionRun::new(
+                mission_id.to_string(),
+                robot_id.to_string(),
+                text,
+                plan.steps.clone(),
+                clarification.clone(),
+                span,
+            );
+            self.fleet.start(robot_id, run).await?;
+            response.state =
+                if clarification.is_some() { MissionState::AwaitingClarification } else { MissionState::Pending } as i32;
+        }
+        response.outcome = Some(match clarification {
+            Some(c) => submit_mission_response::Outcome::Clarification(c),
+            None => submit_mission_response::Outcome::Plan(plan),
+        });
+        Ok(response)
+    }
+}
+
+type EventStream = Pin<Box<dyn Stream<Item = Result<MissionEvent, Status>> + Send>>;
+type CommandStream = ReceiverStream<Result<GatewayCommand, Status>>;
+
+#[tonic::async_trait]
+impl MissionService for Gateway {
+    async fn submit_mission(&self, request: Request<SubmitMissionRequest>) -> Result<Response<SubmitMissionResponse>, Status> {
+        self.submit(request.into_inner()).await.map(Response::new)
+    }
+
+    type WatchMissionStream = EventStream;
+
+    async fn watch_mission(&self, request: Request<WatchMissionRequest>) -> Result<Response<Self::WatchMissionStream>, Status> {
+        let id = request.into_inner().mission_id;
+        self.mission(&id)?;
+        let watch = self.hub().watch(&id).ok_or_else(|| Status::not_found(format!("no mission with id '{id}'")))?;
+        let (tx, rx) = mpsc::channel(64);
+        let hub = self.hub().clone();
+        tokio::spawn(async move {
+            let mut last = 0;
+            let is_end = |e: &MissionEvent| matches!(e.kind, Some(Kind::Finished(_)));
+            for e in watch.backlog {
+                last = e.seq;
+                let end = is_end(&e);
+                if tx.send(Ok(e)).await.is_err() || end {
+                    return;
+                }
+            }
+            if watch.finished {
+                return;
+            }
+            let mut live = watch.live;
+            loop {
+                let batch = match live.recv().await {
+                    Ok(e) if e.seq <= last => continue,
+                    Ok(e) if e.seq == last + 1 => vec![e],
+                    // Out of order or lagged: read what was missed from the log.
+                    Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => hub.events_after(&id, last),
+                    Err(broadcast::error::RecvError::Closed) => return,
+                };
+                for e in batch {
+                    last = e.seq;
+                    let end = is_end(&e);
+                    if tx.send(Ok(e)).await.is_err() || end {
+                        return;
+                    }
+                }
+            }
+        });
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn get_mission(&self, request: Request<GetMissionRequest>) -> Result<Response<Mission>, Status> {
+        self.mission(&request.into_inner().mission_id).map(Response::new)
+    }
+
+    async fn list_missions(&self, request: Request<ListMissionsRequest>) -> Result<Response<ListMissionsResponse>, Status> {
+        let req = request.into_inner();
+        let limit = match req.limit {
+            0 => 100,
+            n => n.min(10_000) as usize,
+        };
+        Ok(Response::new(ListMissionsResponse { missions: self.hub().list(req.robot_id.trim(), limit) }))
+    }
+
+    async fn cancel_mission(&self, request: Request<CancelMissionRequest>) -> Result<Response<Mission>, Status> {
+        let id = request.into_inner().mission_id;
+        let mission = self.mission(&id)?;
+        let state = MissionState::try_from(mission.state).unwrap_or(MissionState::Unspecified);
+        if is_terminal(state) {
+            return Err(Status::failed_precondition(format!(
+                "mission {id} has already finished ({}); nothing to cancel",
+                state.as_str_name()
+            )));
+        }
+        self.fleet.cancel(&mission.robot_id, &id).await?;
+        self.mission(&id).map(Response::new)
+    }
+
+    async fn answer_clarification(
+        &self,
+        request: Request<AnswerClarificationRequest>,
+    ) -> Result<Response<AnswerClarificationResponse>, Status> {
+        let req = request.into_inner();
+        let mission = self.mission(&req.mission_id)?;
+        if mission.state != MissionState::AwaitingClarification as i32 {
+            return Err(Status::failed_precondition(format!(
+                "mission {} is {}, not waiting for an answer",
+                req.mission_id,
+                MissionState::try_from(mission.state).unwrap_or_default().as_str_name()
+            )));
+        }
+        if req.answer.trim().is_empty() {
+            return Err(Status::invalid_argument("the answer is empty"));
+        }
+        if req.answer.len() > MAX_INSTRUCTION_BYTES {
+            return Err(Status::invalid_argument(format!("the answer is longer than {MAX_INSTRUCTION_BYTES} bytes")));
+        }
+        let outcome = self.fleet.answer(&mission.robot_id, &req.mission_id, req.answer.trim().to_string()).await?;
+        let mission = self.mission(&req.mission_id)?;
+        let plan_json = mission.plan_json.clone();
+        Ok(Response::new(AnswerClarificationResponse {
+            mission: Some(mission),
+            plan_json,
+            outcome: Some(match outcome {
+                Ok(steps) => answer_clarification_response::Outcome::Plan(vlnav_proto::v1::ActionPlan { steps }),
+                Err(c) => answer_clarification_response::Outcome::Clarification(c),
+            }),
+        }))
+    }
+}
+
+fn valid_robot_id(id: &str) -> bool {
+    !id.is_empty() && id.len() <= 64 && id.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+}
+
+fn frame_status(robot: &str, e: &FrameError) -> Status {
+    Status::invalid_argument(format!("robot '{robot}', {e}; the stream is closed and the robot is held stopped"))
+}
+
+#[tonic::async_trait]
+impl FleetService for Gateway {
+    type AttachStream = CommandStream;
+
+    async fn attach(&self, request: Request<Streaming<EdgeMessage>>) -> Result<Response<Self::AttachStream>, Status> {
+        let mut inbound = request.into_inner();
+        let hello = match inbound.message().await? {
+            Some(EdgeMessage { kind: Some(edge_message::Kind::Hello(h)) }) => h,
+            _ => return Err(Status::invalid_argument("the first message on Attach must be an EdgeHello naming the robot")),
+        };
+        if !valid_robot_id(&hello.robot_id) {
+            return Err(Status::invalid_argument(format!(
+                "robot_id '{}' must be 1–64 characters of letters, digits, '-', '_' or '.'",
+                hello.robot_id
+            )));
+        }
+        let (tx, rx) = mpsc::channel(16);
+        let conn = self.fleet.next_conn();
+        let robot = hello.robot_id.clone();
+        let mailbox = self.fleet.attach(hello, tx.clone(), conn).await?;
+        tokio::spawn(async move {
+            let mut last_stamp = None;
+            let reason = loop {
+                let msg = match inbound.message().await {
+                    Ok(Some(m)) => m,
+                    Ok(None) => break "the edge agent closed the stream".to_string(),
+                    Err(s) => break format!("stream error: {}", s.message()),
+                };
+                let sent = match msg.kind {
+                    Some(edge_message::Kind::Frame(frame)) => {
+                        let checked = match &frame.frame {
+                            None => Err(FrameError::Missing { seq: 0, field: "frame" }),
+                            Some(f) if !f.robot_id.is_empty() && f.robot_id != robot => Err(FrameError::Invalid {
+                                seq: f.seq,
+                                what: format!("robot_id '{}' differs from the attached robot", f.robot_id),
+                            }),
+                            Some(f) => frames::check_frame(f, last_stamp).map(|_| f.stamp),
+                        };
+                        match checked {
+                            Ok(stamp) => {
+                                last_stamp = Some(stamp);
+                                mailbox.tell(RobotMsg::Frame { conn, frame: Box::new(frame) }).await
+                            }
+                            Err(e) => {
+                                tracing::warn!(robot = %robot, "rejected frame: {e}");
+                                let _ = tx.send(Err(frame_status(&robot, &e))).await;
+                                break format!("invalid frame: {e}");
+                            }
+                        }
+                    }
+                    Some(edge_message::Kind::Odometry(o)) => {
+                        if let Some(p) = &o.pose {
+                            if let Err(e) = frames::check_pose(0, p) {
+                                let _ = tx.send(Err(frame_status(&robot, &e))).await;
+                                break format!("invalid odometry: {e}");
+                            }
+                        }
+                        mailbox.tell(RobotMsg::Odometry { conn, odometry: o }).await
+                    }
+                    Some(edge_message::Kind::Status(s)) => mailbox.tell(RobotMsg::Status { conn, status: s }).await,
+                    Some(edge_message::Kind::Hello(_)) => {
+                        let _ = tx.send(Err(Status::invalid_argument("EdgeHello may only be sent once, first"))).await;
+                        break "a second hello".to_string();
+                    }
+                    None => Ok(()),
+                };
+                if sent.is_err() {
+                    let _ = tx.send(Err(Status::unavailable("the robot's actor stopped; reconnect"))).await;
+                    break "the robot actor stopped".to_string();
+                }
+            };
+            let _ = mailbox.tell(RobotMsg::Detach { conn, reason }).await;
+        });
+        Ok(Response::new(ReceiverStream::new(rx)))
+    }
+
+    async fn list_robots(&self, _request: Request<ListRobotsRequest>) -> Result<Response<ListRobotsResponse>, Status> {
+        Ok(Response::new(ListRobotsResponse { robots: self.fleet.list() }))
+    }
+}

@@ -1,0 +1,136 @@
+//! Gateway settings: where the stage services are, where missions persist,
+//! and the executor's parameters (SPEC.md §2, the authors' values by default).
+
+use std::path::PathBuf;
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct GatewayOptions {
+    #[arg(long, env = "VLNAV_INGRESS_URI", default_value = "http://127.0.0.1:50052")]
+    pub ingress_uri: String,
+    #[arg(long, env = "VLNAV_PLANNER_URI", default_value = "http://127.0.0.1:50053")]
+    pub planner_uri: String,
+    #[arg(long, env = "VLNAV_DETECTOR_URI", default_value = "http://127.0.0.1:50054")]
+    pub detector_uri: String,
+    #[arg(long, env = "VLNAV_REID_URI", default_value = "http://127.0.0.1:50055")]
+    pub reid_uri: String,
+    #[arg(long, env = "VLNAV_SEGMENTER_URI", default_value = "http://127.0.0.1:50056")]
+    pub segmenter_uri: String,
+    #[arg(long, env = "VLNAV_SUBGOAL_URI", default_value = "http://127.0.0.1:50057")]
+    pub subgoal_uri: String,
+    #[arg(long, env = "VLNAV_LOCAL_PLANNER_URI", default_value = "http://127.0.0.1:50058")]
+    pub local_planner_uri: String,
+    /// Where missions and their event logs persist.
+    #[arg(long, env = "VLNAV_DATA_DIR", default_value = ".vlnav")]
+    pub data_dir: PathBuf,
+    #[command(flatten)]
+    pub executor: ExecutorParams,
+}
+
+/// Mission-executor parameters. Durations are sensor time.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ExecutorParams {
+    /// Consecutive frames with the target before it counts as found.
+    #[arg(long, env = "VLNAV_CONFIRM_FRAMES", default_value_t = 3)]
+    pub confirm_frames: u32,
+    /// Detector confidence for targets.
+    #[arg(long, env = "VLNAV_MIN_SCORE", default_value_t = 0.4)]
+    pub min_score: f32,
+    /// Stopping distance of FIND/FOLLOW steps that give none, metres.
+    #[arg(long, env = "VLNAV_DEFAULT_STOP_DISTANCE", default_value_t = 1.5)]
+    pub default_d_s: f64,
+    /// Frames without the target before exploring.
+    #[arg(long, env = "VLNAV_UNSEEN_FRAMES", default_value_t = 10)]
+    pub unseen_frames: u32,
+    /// Rotation of one scan turn, radians (30°).
+    #[arg(long, default_value_t = std::f64::consts::FRAC_PI_6)]
+    pub scan_turn_rad: f64,
+    /// Scan turns per full look-around.
+    #[arg(long, default_value_t = 12)]
+    pub scan_turns: u32,
+    /// Frames to hold still and look after each scan turn.
+    #[arg(long, default_value_t = 3)]
+    pub look_frames: u32,
+    /// Forward search legs after a fruitless look-around, before asking the user.
+    #[arg(long, default_value_t = 1)]
+    pub search_legs: u32,
+    /// Length of one search leg, metres.
+    #[arg(long, default_value_t = 2.0)]
+    pub search_leg_m: f64,
+    /// A step blocked (or making no progress) this long asks the user, seconds.
+    #[arg(long, default_value_t = 8.0)]
+    pub stuck_timeout_s: f64,
+    /// A step running longer than this asks the user, seconds.
+    #[arg(long, default_value_t = 180.0)]
+    pub step_timeout_s: f64,
+    /// FOLLOW duration when the plan gives none, seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub follow_default_s: f64,
+    /// A followed target unseen this long triggers exploration, seconds.
+    #[arg(long, default_value_t = 3.0)]
+    pub follow_lost_s: f64,
+}
+
+impl Default for ExecutorParams {
+    fn default() -> Self {
+        Self {
+            confirm_frames: 3,
+            min_score: 0.4,
+            default_d_s: 1.5,
+            unseen_frames: 10,
+            scan_turn_rad: std::f64::consts::FRAC_PI_6,
+            scan_turns: 12,
+            look_frames: 3,
+            search_legs: 1,
+            search_leg_m: 2.0,
+            stuck_timeout_s: 8.0,
+            step_timeout_s: 180.0,
+            follow_default_s: 30.0,
+            follow_lost_s: 3.0,
+        }
+    }
+}
+
+impl GatewayOptions {
+    /// Options pointing at services on loopback `ports`, data in `data_dir`.
+    pub fn loopback(ports: &crate::config::StagePorts, data_dir: PathBuf) -> Self {
+        let uri = |p: u16| format!("http://127.0.0.1:{p}");
+        Self {
+            ingress_uri: uri(ports.ingress),
+            planner_uri: uri(ports.planner),
+            detector_uri: uri(ports.detector),
+            reid_uri: uri(ports.reid),
+            segmenter_uri: uri(ports.segmenter),
+            subgoal_uri: uri(ports.subgoal),
+            local_planner_uri: uri(ports.local_planner),
+            data_dir,
+            executor: ExecutorParams::default(),
+        }
+    }
+}
+
+/// Loopback ports of the stage services.
+#[derive(Clone, Copy, Debug)]
+pub struct StagePorts {
+    pub ingress: u16,
+    pub planner: u16,
+    pub detector: u16,
+    pub reid: u16,
+    pub segmenter: u16,
+    pub subgoal: u16,
+    pub local_planner: u16,
+}
+
+impl Default for StagePorts {
+    fn default() -> Self {
+        use vlnav_runtime::ports;
+        Self {
+            ingress: ports::INGRESS,
+            planner: ports::PLANNER,
+            detector: ports::DETECTOR,
+            reid: ports::REID,
+            segmenter: ports::SEGMENTER,
+            subgoal: ports::SUBGOAL,
+            local_planner: ports::LOCAL_PLANNER,
+        }
+    }
+}

@@ -1,0 +1,191 @@
+//! Checks of what an edge agent sends, before anything acts on it.
+
+use vlnav_proto::v1::{ImageEncoding, Pose2D, RgbdFrame};
+
+/// Largest accepted image side, pixels.
+pub const MAX_SIDE: u32 = 4096;
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum FrameError {
+    #[error("frame {seq}: {field} is missing")]
+    Missing { seq: u64, field: &'static str },
+    #[error("frame {seq}: {field} is not a finite number ({value})")]
+    NotFinite { seq: u64, field: &'static str, value: f64 },
+    #[error("frame {seq}: {what}")]
+    Invalid { seq: u64, what: String },
+    #[error("frame {seq}: stamp {stamp} s is older than the previous frame's {previous} s; sensor time must not go backwards")]
+    StampBackwards { seq: u64, stamp: f64, previous: f64 },
+}
+
+fn finite(seq: u64, field: &'static str, value: f64) -> Result<(), FrameError> {
+    if value.is_finite() { Ok(()) } else { Err(FrameError::NotFinite { seq, field, value }) }
+}
+
+/// Checks a pose for non-finite values.
+pub fn check_pose(seq: u64, pose: &Pose2D) -> Result<(), FrameError> {
+    finite(seq, "odom.x", pose.x)?;
+    finite(seq, "odom.y", pose.y)?;
+    finite(seq, "odom.theta", pose.theta)
+}
+
+/// Validates a sensor frame: camera model, image sizes against the camera,
+/// finite pose and velocity, and a stamp not older than `previous_stamp`.
+pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(), FrameError> {
+    let seq = frame.seq;
+    finite(seq, "stamp", frame.stamp)?;
+    if frame.stamp < 0.0 {
+        return Err(FrameError::Invalid { seq, what: format!("stamp {} s is negative", frame.stamp) });
+    }
+    if let Some(previous) = previous_stamp {
+        if frame.stamp < previous {
+            return Err(FrameError::StampBackwards { seq, stamp: frame.stamp, previous });
+        }
+    }
+    let pose = frame.odom.as_ref().ok_or(FrameError::Missing { seq, field: "odom" })?;
+    check_pose(seq, pose)?;
+    if let Some(t) = &frame.odom_twist {
+        finite(seq, "odom_twist.linear", t.linear)?;
+        finite(seq, "odom_twist.angular", t.angular)?;
+    }
+    let cam = frame.camera.as_ref().ok_or(FrameError::Missing { seq, field: "camera" })?;
+    let (w, h) = (cam.width, cam.height);
+    if w == 0 || h == 0 || w > MAX_SIDE || h > MAX_SIDE {
+        return Err(FrameError::Invalid {
+            seq,
+            what: format!("camera size {w}x{h} is outside 1..={MAX_SIDE} pixels per side"),
+        });
+    }
+    let k = cam.intrinsics.as_ref().ok_or(FrameError::Missing { seq, field: "camera.intrinsics" })?;
+    for (field, v) in [("camera.intrinsics.fx", k.fx), ("camera.intrinsics.fy", k.fy)] {
+        finite(seq, field, v)?;
+        if v <= 0.0 {
+            return Err(FrameError::Invalid { seq, what: format!("{field} = {v} must be positive") });
+        }
+    }
+    finite(seq, "camera.intrinsics.cx", k.cx)?;
+    finite(seq, "camera.intrinsics.cy", k.cy)?;
+    let pixels = w as usize * h as usize;
+    let depth = frame.depth.as_ref().ok_or(FrameError::Missing { seq, field: "depth" })?;
+    if depth.width != w || depth.height != h || depth.data_mm.len() != pixels * 2 {
+        return Err(FrameError::Invalid {
+            seq,
+            what: format!(
+                "depth is {}x{} with {} bytes; the camera is {w}x{h}, so {} bytes of u16 millimetres are expected",
+                depth.width,
+                depth.height,
+                depth.data_mm.len(),
+                pixels * 2
+            ),
+        });
+    }
+    if let Some(rgb) = &frame.rgb {
+        match ImageEncoding::try_from(rgb.encoding) {
+            Ok(ImageEncoding::Rgb8) => {
+                if rgb.width != w || rgb.height != h || rgb.data.len() != pixels * 3 {
+                    return Err(FrameError::Invalid {
+                        seq,
+                        what: format!(
+                            "rgb is {}x{} with {} bytes; the camera is {w}x{h}, so {} bytes of RGB8 are expected",
+                            rgb.width,
+                            rgb.height,
+                            rgb.data.len(),
+                            pixels * 3
+                        ),
+                    });
+                }
+            }
+            Ok(ImageEncoding::Png | ImageEncoding::Jpeg) if !rgb.data.is_empty() => {}
+            _ => {
+                return Err(FrameError::Invalid {
+                    seq,
+                    what: format!("rgb encoding {} with {} bytes is not a usable image (RGB8, PNG or JPEG)", rgb.encoding, rgb.data.len()),
+                });
+            }
+        }
+    }
+    if let Some(labels) = &frame.labels {
+        if labels.width != w || labels.height != h || labels.instance_ids.len() != pixels * 2 {
+            return Err(FrameError::Invalid {
+                seq,
+                what: format!(
+                    "labels are {}x{} with {} bytes; the camera is {w}x{h}, so {} bytes of u16 ids are expected",
+                    labels.width,
+                    labels.height,
+                    labels.instance_ids.len(),
+                    pixels * 2
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use vlnav_proto::v1::{CameraInfo, CameraIntrinsics, DepthImage, Image};
+
+    pub(crate) fn frame(w: u32, h: u32) -> RgbdFrame {
+        RgbdFrame {
+            robot_id: "husky-1".into(),
+            seq: 7,
+            stamp: 1.5,
+            camera: Some(CameraInfo {
+                width: w,
+                height: h,
+                intrinsics: Some(CameraIntrinsics { fx: 343.159, fy: 343.159, cx: 320.5, cy: 240.5 }),
+                mount: None,
+                depth_min_m: 0.3,
+                depth_max_m: 10.0,
+            }),
+            rgb: Some(Image { width: w, height: h, encoding: ImageEncoding::Rgb8 as i32, data: vec![0; (w * h * 3) as usize] }),
+            depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize] }),
+            odom: Some(Pose2D { x: 0.0, y: 0.0, theta: 0.0 }),
+            odom_twist: None,
+            labels: None,
+        }
+    }
+
+    #[test]
+    fn a_well_formed_frame_passes() {
+        assert_eq!(check_frame(&frame(64, 48), Some(1.0)), Ok(()));
+    }
+
+    #[test]
+    fn a_nan_pose_is_named() {
+        let mut f = frame(8, 6);
+        f.odom.as_mut().unwrap().theta = f64::NAN;
+        let e = check_frame(&f, None).unwrap_err();
+        assert!(e.to_string().contains("odom.theta is not a finite number"), "{e}");
+    }
+
+    #[test]
+    fn a_short_depth_image_says_what_was_expected() {
+        let mut f = frame(8, 6);
+        f.depth.as_mut().unwrap().data_mm.truncate(10);
+        let e = check_frame(&f, None).unwrap_err().to_string();
+        assert!(e.contains("96 bytes of u16 millimetres are expected"), "{e}");
+    }
+
+    #[test]
+    fn a_wrong_rgb_size_and_a_time_reversal_are_rejected() {
+        let mut f = frame(8, 6);
+        f.rgb.as_mut().unwrap().data.pop();
+        assert!(check_frame(&f, None).unwrap_err().to_string().contains("RGB8"));
+        let f = frame(8, 6);
+        assert!(matches!(check_frame(&f, Some(2.0)), Err(FrameError::StampBackwards { .. })));
+    }
+
+    #[test]
+    fn missing_parts_and_absurd_cameras_are_rejected() {
+        let mut f = frame(8, 6);
+        f.depth = None;
+        assert_eq!(check_frame(&f, None), Err(FrameError::Missing { seq: 7, field: "depth" }));
+        let mut f = frame(8, 6);
+        f.camera.as_mut().unwrap().width = 100_000;
+        assert!(check_frame(&f, None).unwrap_err().to_string().contains("outside 1..=4096"));
+        let mut f = frame(8, 6);
+        f.camera.as_mut().unwrap().intrinsics.as_mut().unwrap().fx = 0.0;
+        assert!(check_frame(&f, None).unwrap_err().to_string().contains("must be positive"));
+    }
+}

@@ -1,0 +1,351 @@
+//! One actor per robot. It owns the robot's attach stream (the sender of
+//! velocity commands), its connection state and the mission being executed,
+//! and answers every sensor frame with exactly one command.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+
+use tokio::sync::{mpsc, oneshot};
+use tonic::Status;
+use tracing::Instrument;
+use vlnav_proto::v1::{
+    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, MissionState, OdometryUpdate, RobotInfo,
+    SensorFrame, Twist2D, VelocityCommand, gateway_command,
+};
+use vlnav_runtime::actor::Mailbox;
+
+use crate::config::ExecutorParams;
+use crate::executor::{Ctx, MissionRun};
+use crate::hub::Hub;
+use crate::pipeline::Pipeline;
+
+pub type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
+
+pub enum RobotMsg {
+    Attach { hello: EdgeHello, outbound: Outbound, conn: u64, reply: oneshot::Sender<Result<(), Status>> },
+    Frame { conn: u64, frame: Box<SensorFrame> },
+    Odometry { conn: u64, odometry: OdometryUpdate },
+    Status { conn: u64, status: EdgeStatus },
+    Detach { conn: u64, reason: String },
+    Reserve { mission_id: String, reply: oneshot::Sender<Result<(), Status>> },
+    Release { mission_id: String },
+    Start { run: Box<MissionRun>, reply: oneshot::Sender<Result<(), Status>> },
+    Cancel { mission_id: String, reply: oneshot::Sender<Result<(), Status>> },
+    Answer { mission_id: String, answer: String, reply: oneshot::Sender<Result<Result<Vec<ActionStep>, Clarification>, Status>> },
+}
+
+/// Every robot the gateway has seen, connected or not.
+pub struct Fleet {
+    robots: Mutex<HashMap<String, (Mailbox<RobotMsg>, Arc<Mutex<RobotInfo>>)>>,
+    hub: Arc<Hub>,
+    pipeline: Pipeline,
+    params: ExecutorParams,
+    next_conn: std::sync::atomic::AtomicU64,
+}
+
+impl Fleet {
+    pub fn new(hub: Arc<Hub>, pipeline: Pipeline, params: ExecutorParams) -> Arc<Self> {
+        Arc::new(Self { robots: Mutex::new(HashMap::new()), hub, pipeline, params, next_conn: 1.into() })
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, (Mailbox<RobotMsg>, Arc<Mutex<RobotInfo>>)>> {
+        self.robots.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    /// The robot's mailbox, creating its actor on first contact.
+    fn robot(self: &Arc<Self>, robot_id: &str) -> Mailbox<RobotMsg> {
+        let mut robots = self.lock();
+        if let Some((mb, _)) = robots.get(robot_id) {
+            if !mb.is_closed() {
+                return mb.clone();
+            }
+        }
+        let (mailbox, rx) = Mailbox::channel("robot", 64);
+        let info = Arc::new(Mutex::new(RobotInfo { robot_id: robot_id.to_string(), ..Default::default() }));
+        let actor = RobotActor {
+            robot_id: robot_id.to_string(),
+            fleet: self.clone(),
+            info: info.clone(),
+            conn: None,
+            reserved: None,
+            run: None,
+            last_stamp: None,
+            command_seq: 0,
+        };
+        tokio::spawn(actor.run(rx));
+        robots.insert(robot_id.to_string(), (mailbox.clone(), info));
+        mailbox
+    }
+
+    /// A connected robot's mailbox, or NOT_FOUND naming the connected ones.
+    fn connected(&self, robot_id: &str) -> Result<Mailbox<RobotMsg>, Status> {
+        let robots = self.lock();
+        match robots.get(robot_id) {
+            Some((mb, info)) if info.lock().map(|i| i.connected).unwrap_or(false) => Ok(mb.clone()),
+            _ => {
+                let mut names: Vec<String> = robots
+                    .iter()
+                    .filter(|(_, (_, i))| i.lock().map(|i| i.connected).unwrap_or(false))
+                    .map(|(k, _)| k.clone())
+                    .collect();
+                names.sort();
+                Err(Status::not_found(format!(
+                    "no robot named '{robot_id}' is connected (connected: {}); start its edge agent or pick one from ListRobots",
+                    if names.is_empty() { "none".to_string() } else { names.join(", ") }
+                )))
+            }
+        }
+    }
+
+    pub fn next_conn(&self) -> u64 {
+        self.next_conn.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    }
+
+    pub async fn attach(self: &Arc<Self>, hello: EdgeHello, outbound: Outbound, conn: u64) -> Result<Mailbox<RobotMsg>, Status> {
+        let mb = self.robot(&hello.robot_id);
+        mb.call(|reply| RobotMsg::Attach { hello, outbound, conn, reply }).await??;
+        Ok(mb)
+    }
+
+    pub async fn reserve(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
+        let mb = self.connected(robot_id)?;
+        mb.call(|reply| RobotMsg::Reserve { mission_id: mission_id.to_string(), reply }).await?
+    }
+
+    pub async fn release(&self, robot_id: &str, mission_id: &str) {
+        let mb = self.lock().get(robot_id).map(|(mb, _)| mb.clone());
+        if let Some(mb) = mb {
+            let _ = mb.tell(RobotMsg::Release { mission_id: mission_id.to_string() }).await;
+        }
+    }
+
+    fn any(&self, robot_id: &str) -> Result<Mailbox<RobotMsg>, Status> {
+        self.lock()
+            .get(robot_id)
+            .map(|(mb, _)| mb.clone())
+            .ok_or_else(|| Status::not_found(format!("robot '{robot_id}' is not known to this gateway")))
+    }
+
+    pub async fn start(&self, robot_id: &str, run: MissionRun) -> Result<(), Status> {
+        let mb = self.any(robot_id)?;
+        mb.call(|reply| RobotMsg::Start { run: Box::new(run), reply }).await?
+    }
+
+    pub async fn cancel(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
+        let mb = self.any(robot_id)?;
+        mb.call(|reply| RobotMsg::Cancel { mission_id: mission_id.to_string(), reply }).await?
+    }
+
+    pub async fn answer(&self, robot_id: &str, mission_id: &str, answer: String) -> Result<Result<Vec<ActionStep>, Clarification>, Status> {
+        let mb = self.any(robot_id)?;
+        mb.call(|reply| RobotMsg::Answer { mission_id: mission_id.to_string(), answer, reply }).await?
+    }
+
+    pub fn list(&self) -> Vec<RobotInfo> {
+        let mut out: Vec<RobotInfo> =
+            self.lock().values().map(|(_, i)| i.lock().map(|i| i.clone()).unwrap_or_default()).collect();
+        out.sort_by(|a, b| a.robot_id.cmp(&b.robot_id));
+        out
+    }
+
+    pub fn hub(&self) -> &Arc<Hub> {
+        &self.hub
+    }
+
+    pub fn pipeline(&self) -> &Pipeline {
+        &self.pipeline
+    }
+}
+
+struct RobotActor {
+    robot_id: String,
+    fleet: Arc<Fleet>,
+    info: Arc<Mutex<RobotInfo>>,
+    conn: Option<(u64, Outbound)>,
+    /// A mission being planned for this robot (between SubmitMission's check and start).
+    reserved: Option<String>,
+    run: Option<Box<MissionRun>>,
+    last_stamp: Option<f64>,
+    command_seq: u64,
+}
+
+impl RobotActor {
+    fn update(&self, f: impl FnOnce(&mut RobotInfo)) {
+        if let Ok(mut i) = self.info.lock() {
+            f(&mut i);
+        }
+    }
+
+    fn busy_with(&self) -> Option<String> {
+        self.run.as_ref().map(|r| r.mission_id.clone()).or_else(|| self.reserved.clone())
+    }
+
+    async fn run(mut self, mut rx: mpsc::Receiver<RobotMsg>) {
+        while let Some(msg) = rx.recv().await {
+            self.handle(msg).await;
+        }
+    }
+
+    async fn handle(&mut self, msg: RobotMsg) {
+        match msg {
+            RobotMsg::Attach { hello, outbound, conn, reply } => {
+                if let Some((old, tx)) = &self.conn {
+                    if !tx.is_closed() {
+                        let _ = reply.send(Err(Status::already_exists(format!(
+                            "robot '{}' is already attached (connection {old}); stop the other edge agent first",
+                            self.robot_id
+                        ))));
+                        return;
+                    }
+                }
+                self.conn = Some((conn, outbound));
+                self.last_stamp = None;
+                self.update(|i| {
+                    i.connected = true;
+                    i.driver = hello.driver.clone();
+                    i.lockstep = hello.lockstep;
+                    i.limits = hello.limits;
+                });
+                tracing::info!(robot = %self.robot_id, driver = %hello.driver, lockstep = hello.lockstep, "robot attached");
+                let _ = reply.send(Ok(()));
+            }
+            RobotMsg::Detach { conn, reason } => {
+                if self.conn.as_ref().is_some_and(|(c, _)| *c == conn) {
+                    self.conn = None;
+                    self.update(|i| i.connected = false);
+                    tracing::info!(robot = %self.robot_id, %reason, "robot detached");
+                }
+            }
+            RobotMsg::Odometry { conn, odometry } => {
+                if self.is_current(conn) {
+                    self.update(|i| {
+                        i.last_odometry = odometry.pose;
+                        i.last_stamp = odometry.stamp;
+                    });
+                }
+            }
+            RobotMsg::Status { conn, status } => {
+                if self.is_current(conn) {
+                    self.update(|i| {
+                        i.estop = status.estop;
+                        i.deadman_tripped = status.deadman_tripped;
+                    });
+                }
+            }
+            RobotMsg::Frame { conn, frame } => {
+                if self.is_current(conn) {
+                    self.on_frame(*frame).await;
+                }
+            }
+            RobotMsg::Reserve { mission_id, reply } => {
+                let r = match self.busy_with() {
+                    Some(other) => Err(Status::failed_precondition(format!(
+                        "robot '{}' is busy with mission {other}; cancel it (CancelMission) or wait for it to finish",
+                        self.robot_id
+                    ))),
+                    None => {
+                        self.reserved = Some(mission_id);
+                        Ok(())
+                    }
+                };
+                let _ = reply.send(r);
+            }
+            RobotMsg::Release { mission_id } => {
+                if self.reserved.as_deref() == Some(mission_id.as_str()) {
+                    self.reserved = None;
+                }
+            }
+            RobotMsg::Start { run, reply } => {
+                let r = match self.busy_with() {
+                    Some(other) if other != run.mission_id => Err(Status::failed_precondition(format!(
+                        "robot '{}' is busy with mission {other}",
+                        self.robot_id
+                    ))),
+                    _ => {
+                        self.reserved = None;
+                        let id = run.mission_id.clone();
+                        self.update(|i| i.active_mission_id = id);
+                        self.run = Some(run);
+                        Ok(())
+                    }
+                };
+                let _ = reply.send(r);
+            }
+            RobotMsg::Cancel { mission_id, reply } => {
+                let r = match self.run.as_mut() {
+                    Some(run) if run.mission_id == mission_id => {
+                        let ctx = Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
+                        run.finish(&ctx, MissionState::Cancelled, "cancelled by the user; the robot was stopped".into());
+                        self.run = None;
+                        self.update(|i| i.active_mission_id.clear());
+                        Ok(())
+                    }
+                    _ => Err(Status::failed_precondition(format!(
+                        "mission {mission_id} is not running on robot '{}'",
+                        self.robot_id
+                    ))),
+                };
+                let _ = reply.send(r);
+            }
+            RobotMsg::Answer { mission_id, answer, reply } => {
+                let r = match self.run.as_mut() {
+                    Some(run) if run.mission_id == mission_id => {
+                        let ctx = Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
+                        run.answer(&ctx, &answer).await
+                    }
+                    _ => Err(Status::failed_precondition(format!(
+                        "mission {mission_id} is not waiting on robot '{}'",
+                        self.robot_id
+                    ))),
+                };
+                let _ = reply.send(r);
+            }
+        }
+    }
+
+    fn is_current(&self, conn: u64) -> bool {
+        self.conn.as_ref().is_some_and(|(c, _)| *c == conn)
+    }
+
+    async fn on_frame(&mut self, frame: SensorFrame) {
+        let Some(f) = frame.frame.as_ref() else { return };
+        let stamp = f.stamp;
+        self.last_stamp = Some(stamp);
+        self.update(|i| {
+            i.frames_received += 1;
+            i.last_stamp = stamp;
+            i.last_odometry = f.odom;
+        });
+        let ctx = Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
+        let (twist, active, span, mission_id) = match self.run.as_mut() {
+            Some(run) => {
+                let tick = run.on_frame(&ctx, &frame).await;
+                let id = run.mission_id.clone();
+                if tick.finished.is_some() {
+                    self.run = None;
+                    self.update(|i| i.active_mission_id.clear());
+                }
+                (tick.twist, tick.active, tick.span, id)
+            }
+            None => (Twist2D::default(), false, tracing::Span::none(), String::new()),
+        };
+        self.command_seq += 1;
+        let cmd = GatewayCommand {
+            kind: Some(gateway_command::Kind::Velocity(VelocityCommand {
+                seq: self.command_seq,
+                stamp,
+                twist: Some(twist),
+                idle: !active,
+                mission_id,
+            })),
+        };
+        if let Some((_, tx)) = &self.conn {
+            let forward = tracing::info_span!(parent: &span, "edge-forward", robot.id = %self.robot_id);
+            if span.is_none() {
+                let _ = tx.send(Ok(cmd)).await;
+            } else if tx.send(Ok(cmd)).instrument(forward).await.is_err() {
+                tracing::warn!(robot = %self.robot_id, "the edge agent went away before its command was sent");
+            }
+        }
+    }
+}
