@@ -409,7 +409,20 @@ impl FleetService for Gateway {
                 let msg = match inbound.message().await {
                     Ok(Some(m)) => m,
                     Ok(None) => break "the edge agent closed the stream".to_string(),
-                    Err(s) => break format!("stream error: {}", s.message()),
+                    Err(s) => {
+                        let status = if s.code() == tonic::Code::OutOfRange && s.message().contains("too large") {
+                            Status::resource_exhausted(format!(
+                                "robot '{robot}': a message exceeded the gateway's size limit ({}); lower the camera \
+                                 resolution or raise VLNAV_MAX_MESSAGE_BYTES on the gateway",
+                                s.message()
+                            ))
+                        } else {
+                            s
+                        };
+                        let reason = format!("stream error: {}", status.message());
+                        let _ = tx.send(Err(status)).await;
+                        break reason;
+                    }
                 };
                 let sent = match msg.kind {
                     Some(edge_message::Kind::Frame(frame)) => {

@@ -11,6 +11,7 @@
 //! - [`api`]: the thin tonic layer of MissionService and FleetService.
 
 pub mod api;
+pub mod cli;
 pub mod config;
 pub mod executor;
 pub mod frames;
@@ -18,5 +19,6 @@ pub mod hub;
 pub mod pipeline;
 pub mod robot;
 pub mod store;
+pub mod up;
 
 pub use config::GatewayOptions;

@@ -1,1 +1,121 @@
-//! End-to-end tests live in tests/tests/.
+//! Harness of the end-to-end tests in `tests/tests/`: a whole vlnav stack on
+//! ephemeral loopback ports, and the real command-line clients users run.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::Duration;
+
+use vlnav_gateway::up::{Stack, UpArgs, up};
+use vlnav_proto::v1::{
+    GetMissionRequest, ListRobotsRequest, Mission, MissionEvent, WatchMissionRequest,
+    fleet_service_client::FleetServiceClient, mission_service_client::MissionServiceClient,
+};
+
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("tests/ sits in the repository").to_path_buf()
+}
+
+/// A command-line tool installed by `deploy/setup-tools.sh` into `.venv/bin`.
+pub fn tool(name: &str) -> PathBuf {
+    let path = repo_root().join(".venv/bin").join(name);
+    assert!(path.exists(), "{} is missing: run deploy/setup-tools.sh (or `make test`) first", path.display());
+    path
+}
+
+/// Points the services at the repository's models directory unless set.
+pub fn use_repo_models() {
+    if std::env::var_os("VLNAV_MODELS_DIR").is_none() {
+        let dir = repo_root().join("models");
+        assert!(
+            dir.join("minilm").exists(),
+            "models are missing in {}: run deploy/fetch-models.sh (or `make test`) first",
+            dir.display()
+        );
+        // SAFETY: called at the start of a test, before the stack's threads read the environment.
+        unsafe { std::env::set_var("VLNAV_MODELS_DIR", dir) };
+    }
+}
+
+/// A stack on ephemeral ports with its own data directory.
+pub struct TestStack {
+    pub stack: Stack,
+    pub data: tempfile::TempDir,
+}
+
+impl TestStack {
+    pub async fn start(configure: impl FnOnce(&mut UpArgs)) -> Self {
+        use_repo_models();
+        let data = tempfile::tempdir().expect("temp dir");
+        let mut args = UpArgs { ephemeral_ports: true, data_dir: data.path().to_path_buf(), ..UpArgs::default() };
+        configure(&mut args);
+        let stack = up(&args).await.expect("the stack starts");
+        let t = Self { stack, data };
+        if !args.no_robot {
+            t.wait_for_robot(&args.robot_id).await;
+        }
+        t
+    }
+
+    pub fn uri(&self) -> String {
+        self.stack.gateway_uri()
+    }
+
+    pub fn addr(&self) -> String {
+        self.stack.gateway_addr.to_string()
+    }
+
+    pub async fn missions(&self) -> MissionServiceClient<tonic::transport::Channel> {
+        MissionServiceClient::connect(self.uri()).await.expect("gateway reachable")
+    }
+
+    pub async fn wait_for_robot(&self, robot_id: &str) {
+        let mut client = FleetServiceClient::connect(self.uri()).await.expect("gateway reachable");
+        for _ in 0..600 {
+            let robots = client.list_robots(ListRobotsRequest {}).await.expect("ListRobots").into_inner().robots;
+            if robots.iter().any(|r| r.robot_id == robot_id && r.connected && r.frames_received > 0) {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        panic!("robot {robot_id} did not attach within 60 s");
+    }
+
+    /// Every event of a mission until it finishes (bounded by `limit`).
+    pub async fn follow(&self, mission_id: &str, limit: Duration) -> (Vec<MissionEvent>, Mission) {
+        let mut client = self.missions().await;
+        let mut stream = client
+            .watch_mission(WatchMissionRequest { mission_id: mission_id.into() })
+            .await
+            .expect("WatchMission")
+            .into_inner();
+        let mut events = Vec::new();
+        let collect = async {
+            while let Some(e) = stream.message().await.expect("event stream") {
+                events.push(e);
+            }
+        };
+        tokio::time::timeout(limit, collect).await.unwrap_or_else(|_| panic!("mission {mission_id} did not finish within {limit:?}"));
+        let mission = client.get_mission(GetMissionRequest { mission_id: mission_id.into() }).await.expect("GetMission").into_inner();
+        (events, mission)
+    }
+}
+
+/// Runs the real grpcurl (1.8.6, reflection v1alpha) and returns stdout, or
+/// stderr as the error.
+pub fn grpcurl(args: &[&str]) -> Result<String, String> {
+    let out = Command::new(tool("grpcurl")).args(args).output().expect("grpcurl runs");
+    if out.status.success() {
+        Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+    } else {
+        Err(String::from_utf8_lossy(&out.stderr).into_owned())
+    }
+}
+
+/// grpcurl prints a stream as concatenated JSON objects.
+pub fn json_objects(text: &str) -> Vec<serde_json::Value> {
+    serde_json::Deserializer::from_str(text).into_iter::<serde_json::Value>().map(|v| v.expect("grpcurl prints JSON")).collect()
+}
+
+/// The paper's Case 2 instruction (SPEC.md §2).
+pub const CASE_2: &str = "Buddy take left turn, move 4 m ahead, then find the standing person to reach close to it, \
+In your right you may see the visitor chair follow it. Finally go at spot where bicycle is standing.";

@@ -1,0 +1,251 @@
+//! `vlnav up`: every stage service and the gateway in one process, each on
+//! its own loopback port and talking real gRPC to the others, plus a
+//! simulated Husky attached through the edge agent.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+use tokio::net::TcpListener;
+use tokio::task::JoinSet;
+use vlnav_runtime::{CancellationToken, ServerConfig, ServiceSet, ports};
+
+use crate::api::Gateway;
+use crate::config::{GatewayOptions, StagePorts};
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct UpArgs {
+    /// Where the gateway listens.
+    #[arg(long, default_value = "127.0.0.1:50051")]
+    pub listen: SocketAddr,
+    /// Put every server on a free port chosen by the OS (for tests and side-by-side stacks).
+    #[arg(long)]
+    pub ephemeral_ports: bool,
+    /// Do not attach the simulated robot.
+    #[arg(long)]
+    pub no_robot: bool,
+    #[arg(long, default_value = "husky-1")]
+    pub robot_id: String,
+    /// Scenario of the simulated robot: a shipped name (demo, lab) or a TOML path.
+    #[arg(long, default_value = "demo")]
+    pub scenario: String,
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Run the simulated robot on the wall clock instead of in lockstep.
+    #[arg(long)]
+    pub realtime: bool,
+    /// Perception backends: `sim` reads the simulator's label images (default
+    /// with the simulated robot); `neural` runs NanoDet/MobileNetV2 and the
+    /// colour segmenter on the RGB frames.
+    #[arg(long, default_value = "sim")]
+    pub perception: String,
+    /// Where missions (and the built-in trace receiver's spans) persist.
+    #[arg(long, env = "VLNAV_DATA_DIR", default_value = ".vlnav")]
+    pub data_dir: PathBuf,
+}
+
+impl Default for UpArgs {
+    fn default() -> Self {
+        Self {
+            listen: SocketAddr::from(([127, 0, 0, 1], ports::GATEWAY)),
+            ephemeral_ports: false,
+            no_robot: false,
+            robot_id: "husky-1".into(),
+            scenario: "demo".into(),
+            seed: 1,
+            realtime: false,
+            perception: "sim".into(),
+            data_dir: PathBuf::from(".vlnav"),
+        }
+    }
+}
+
+type BuildFuture = futures::future::BoxFuture<'static, anyhow::Result<ServiceSet>>;
+type Builder = Box<dyn Fn() -> BuildFuture + Send + Sync>;
+
+/// One stage server of the stack, restartable on its port.
+struct StageServer {
+    addr: SocketAddr,
+    build: Builder,
+    token: CancellationToken,
+}
+
+/// A running stack. Dropping it does not stop it; call [`Stack::shutdown`].
+pub struct Stack {
+    pub gateway_addr: SocketAddr,
+    pub ports: StagePorts,
+    pub gateway: Gateway,
+    token: CancellationToken,
+    tasks: JoinSet<anyhow::Result<()>>,
+    stages: std::collections::HashMap<&'static str, StageServer>,
+    cfg: ServerConfig,
+}
+
+impl Stack {
+    pub fn gateway_uri(&self) -> String {
+        format!("http://{}", self.gateway_addr)
+    }
+
+    pub fn token(&self) -> CancellationToken {
+        self.token.clone()
+    }
+
+    /// Stops one stage server ("planner", "detector", "local-planner", …),
+    /// as if its process died: in-flight calls drain, new ones are refused.
+    pub fn stop_stage(&mut self, name: &str) -> anyhow::Result<()> {
+        let stage = self.stages.get_mut(name).ok_or_else(|| anyhow::anyhow!("no stage named {name}"))?;
+        stage.token.cancel();
+        Ok(())
+    }
+
+    /// Starts a stopped stage server again on its old port.
+    pub async fn restart_stage(&mut self, name: &str) -> anyhow::Result<()> {
+        let stage = self.stages.get_mut(name).ok_or_else(|| anyhow::anyhow!("no stage named {name}"))?;
+        let set = (stage.build)().await?;
+        let mut listener = None;
+        for _ in 0..50 {
+            match TcpListener::bind(stage.addr).await {
+                Ok(l) => {
+                    listener = Some(l);
+                    break;
+                }
+                Err(_) => tokio::time::sleep(std::time::Duration::from_millis(100)).await,
+            }
+        }
+        let listener = listener.ok_or_else(|| anyhow::anyhow!("cannot listen on {} again", stage.addr))?;
+        stage.token = self.token.child_token();
+        spawn_server(&mut self.tasks, &self.cfg, listener, set, &stage.token);
+        Ok(())
+    }
+
+    /// Stops every server (draining in-flight calls) and the robot.
+    pub async fn shutdown(mut self) -> anyhow::Result<()> {
+        self.token.cancel();
+        while let Some(r) = self.tasks.join_next().await {
+            r??;
+        }
+        Ok(())
+    }
+
+    /// Waits until a server fails or the token is cancelled.
+    pub async fn wait(mut self) -> anyhow::Result<()> {
+        while let Some(r) = self.tasks.join_next().await {
+            if let Err(e) = r? {
+                self.token.cancel();
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Defaults of a service's options, with its environment variables applied.
+pub fn options_from_env<T: clap::Args + clap::FromArgMatches>() -> anyhow::Result<T> {
+    let cmd = T::augment_args(clap::Command::new("vlnav").no_binary_name(true));
+    let matches = cmd.try_get_matches_from(std::iter::empty::<String>())?;
+    Ok(T::from_arg_matches(&matches)?)
+}
+
+async fn bind(ephemeral: bool, port: u16) -> anyhow::Result<TcpListener> {
+    let addr = SocketAddr::from(([127, 0, 0, 1], if ephemeral { 0 } else { port }));
+    TcpListener::bind(addr).await.map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e} (is another `vlnav up` running?)"))
+}
+
+fn spawn_server(tasks: &mut JoinSet<anyhow::Result<()>>, cfg: &ServerConfig, listener: TcpListener, set: ServiceSet, token: &CancellationToken) {
+    let cfg = cfg.clone();
+    let token = token.clone();
+    tasks.spawn(async move { vlnav_runtime::serve(&cfg, listener, set, token).await });
+}
+
+/// Wraps a service's `services(&Options, &ServerConfig)` as a rebuildable stage.
+macro_rules! stage {
+    ($krate:ident, $opts:expr, $cfg:expr) => {{
+        let opts = std::sync::Arc::new($opts);
+        let cfg = $cfg.clone();
+        Box::new(move || {
+            let opts = opts.clone();
+            let cfg = cfg.clone();
+            Box::pin(async move { $krate::services(&opts, &cfg).await }) as BuildFuture
+        }) as Builder
+    }};
+}
+
+/// Starts the stack. Telemetry must already be initialised.
+pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
+    let token = CancellationToken::new();
+    let mut tasks = JoinSet::new();
+    let cfg = ServerConfig::default();
+    let eph = args.ephemeral_ports;
+    let sim = args.perception == "sim";
+
+    let mut detector: vlnav_detector::Options = options_from_env()?;
+    let mut reid: vlnav_reid::Options = options_from_env()?;
+    let mut segmenter: vlnav_segmenter::Options = options_from_env()?;
+    if sim {
+        detector.backend = vlnav_detector::BackendKind::Sim;
+        reid.backend = "sim".into();
+        segmenter.backend = "sim".into();
+    }
+    reid.data_dir = args.data_dir.join("reid");
+    let builders: Vec<(&'static str, u16, Builder)> = vec![
+        ("ingress", ports::INGRESS, stage!(vlnav_ingress, options_from_env::<vlnav_ingress::Options>()?, cfg)),
+        ("planner", ports::PLANNER, stage!(vlnav_planner, options_from_env::<vlnav_planner::Options>()?, cfg)),
+        ("detector", ports::DETECTOR, stage!(vlnav_detector, detector, cfg)),
+        ("reid", ports::REID, stage!(vlnav_reid, reid, cfg)),
+        ("segmenter", ports::SEGMENTER, stage!(vlnav_segmenter, segmenter, cfg)),
+        ("subgoal", ports::SUBGOAL, stage!(vlnav_subgoal, options_from_env::<vlnav_subgoal::Options>()?, cfg)),
+        (
+            "local-planner",
+            ports::LOCAL_PLANNER,
+            stage!(vlnav_local_planner, options_from_env::<vlnav_local_planner::Options>()?, cfg),
+        ),
+    ];
+    let mut stages = std::collections::HashMap::new();
+    let mut port_of = std::collections::HashMap::new();
+    for (name, port, build) in builders {
+        let listener = bind(eph, port).await?;
+        let addr = listener.local_addr()?;
+        let set = build().await.map_err(|e| anyhow::anyhow!("{name}: {e:#}"))?;
+        let stage_token = token.child_token();
+        spawn_server(&mut tasks, &cfg, listener, set, &stage_token);
+        port_of.insert(name, addr.port());
+        stages.insert(name, StageServer { addr, build, token: stage_token });
+    }
+    let stage_ports = StagePorts {
+        ingress: port_of["ingress"],
+        planner: port_of["planner"],
+        detector: port_of["detector"],
+        reid: port_of["reid"],
+        segmenter: port_of["segmenter"],
+        subgoal: port_of["subgoal"],
+        local_planner: port_of["local-planner"],
+    };
+
+    let opts = GatewayOptions::loopback(&stage_ports, args.data_dir.clone());
+    let gateway = Gateway::new(&opts)?;
+    let l_gateway = if eph {
+        bind(true, 0).await?
+    } else {
+        TcpListener::bind(args.listen).await.map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", args.listen))?
+    };
+    let gateway_addr = l_gateway.local_addr()?;
+    spawn_server(&mut tasks, &cfg, l_gateway, gateway.services(&cfg), &token);
+
+    if !args.no_robot {
+        let edge = robot_options(args, &format!("http://{gateway_addr}"))?;
+        let t = token.clone();
+        tasks.spawn(async move { vlnav_edge_agent::run(edge, t).await });
+    }
+    tracing::info!(gateway = %gateway_addr, ?stage_ports, robot = !args.no_robot, "vlnav is up");
+    Ok(Stack { gateway_addr, ports: stage_ports, gateway, token, tasks, stages, cfg })
+}
+
+/// The edge agent settings of the simulated robot.
+pub fn robot_options(args: &UpArgs, gateway_uri: &str) -> anyhow::Result<vlnav_edge_agent::EdgeOptions> {
+    let mut edge: vlnav_edge_agent::EdgeOptions = options_from_env()?;
+    edge.gateway = gateway_uri.to_string();
+    edge.robot_id = args.robot_id.clone();
+    edge.scenario = args.scenario.clone();
+    edge.seed = args.seed;
+    edge.lockstep = !args.realtime;
+    Ok(edge)
+}

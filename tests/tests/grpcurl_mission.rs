@@ -1,0 +1,74 @@
+//! A user's first session, with the real grpcurl: list the services, check
+//! every stage's health, submit the paper's Case 2 instruction and watch it
+//! to MISSION_STATE_SUCCEEDED in the demo world.
+
+use std::time::Duration;
+
+use vlnav_e2e::{CASE_2, TestStack, grpcurl, json_objects};
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
+    let t = TestStack::start(|_| {}).await;
+    let addr = t.addr();
+
+    let services = grpcurl(&["-plaintext", &addr, "list"]).expect("grpcurl list");
+    for s in ["vlnav.v1.MissionService", "vlnav.v1.FleetService", "grpc.health.v1.Health", "grpc.reflection.v1alpha.ServerReflection"] {
+        assert!(services.lines().any(|l| l.trim() == s), "`grpcurl list` lacks {s}:\n{services}");
+    }
+
+    let p = t.stack.ports;
+    for (port, service) in [
+        (p.ingress, "vlnav.v1.IngressService"),
+        (p.planner, "vlnav.v1.PlannerService"),
+        (p.detector, "vlnav.v1.DetectorService"),
+        (p.reid, "vlnav.v1.ReidService"),
+        (p.segmenter, "vlnav.v1.SegmenterService"),
+        (p.subgoal, "vlnav.v1.SubgoalService"),
+        (p.local_planner, "vlnav.v1.LocalPlannerService"),
+    ] {
+        let target = format!("127.0.0.1:{port}");
+        let body = format!(r#"{{"service":"{service}"}}"#);
+        let out = grpcurl(&["-plaintext", "-d", &body, &target, "grpc.health.v1.Health/Check"]).expect("health check");
+        assert!(out.contains("SERVING"), "{service} is not serving: {out}");
+        let listed = grpcurl(&["-plaintext", &target, "list"]).expect("stage list");
+        assert!(listed.contains(service), "{service} not listed by its own server: {listed}");
+    }
+
+    let body = serde_json::json!({"robot_id": "husky-1", "text": CASE_2}).to_string();
+    let out = grpcurl(&["-plaintext", "-d", &body, &addr, "vlnav.v1.MissionService/SubmitMission"]).expect("SubmitMission");
+    let submitted: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    let id = submitted["missionId"].as_str().expect("missionId").to_string();
+    let plan_json: serde_json::Value = serde_json::from_str(submitted["planJson"].as_str().expect("planJson")).expect("plan_json is JSON");
+    let actions: Vec<&str> = plan_json.as_array().expect("array").iter().map(|s| s["action"].as_str().unwrap()).collect();
+    assert_eq!(actions, ["MOVE", "FIND", "FIND", "FIND"], "{plan_json}");
+
+    let watch_body = serde_json::json!({"mission_id": id}).to_string();
+    let addr2 = addr.clone();
+    let events = tokio::time::timeout(
+        Duration::from_secs(600),
+        tokio::task::spawn_blocking(move || {
+            grpcurl(&["-plaintext", "-max-time", "590", "-d", &watch_body, &addr2, "vlnav.v1.MissionService/WatchMission"])
+        }),
+    )
+    .await
+    .expect("the mission finishes within 10 minutes")
+    .unwrap()
+    .expect("WatchMission");
+    let events = json_objects(&events);
+    let kinds: Vec<String> =
+        events.iter().map(|e| e.as_object().unwrap().keys().find(|k| !["missionId", "seq", "stamp"].contains(&k.as_str())).cloned().unwrap_or_default()).collect();
+    for step in 0..4 {
+        let started = events.iter().any(|e| e.get("stepStarted").is_some_and(|s| s["index"].as_u64().unwrap_or(0) == step));
+        let reached = events.iter().any(|e| e.get("subgoalReached").is_some_and(|s| s["index"].as_u64().unwrap_or(0) == step));
+        assert!(started && reached, "step {step} was not both started and reached; events: {kinds:?}");
+    }
+    assert!(events.iter().filter(|e| e.get("targetSeen").is_some()).count() >= 3, "three targets seen: {kinds:?}");
+    let last = events.last().expect("events");
+    assert_eq!(last["finished"]["state"], "MISSION_STATE_SUCCEEDED", "{last}");
+
+    let got = grpcurl(&["-plaintext", "-d", &serde_json::json!({"mission_id": id}).to_string(), &addr, "vlnav.v1.MissionService/GetMission"])
+        .expect("GetMission");
+    let got: serde_json::Value = serde_json::from_str(&got).unwrap();
+    assert_eq!(got["state"], "MISSION_STATE_SUCCEEDED");
+    t.stack.shutdown().await.unwrap();
+}

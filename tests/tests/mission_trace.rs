@@ -1,0 +1,78 @@
+//! One mission is one distributed trace: spans from the gateway, planner,
+//! detector, subgoal estimator and local planner, exported over OTLP to a
+//! receiver built on the official opentelemetry-proto definitions, with
+//! correct parent links.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Duration;
+
+use vlnav_e2e::TestStack;
+use vlnav_proto::v1::{MissionState, SubmitMissionRequest, submit_mission_request::Instruction};
+use vlnav_traces::{Span, SpanStore, serve_receiver};
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
+    let spans_dir = tempfile::tempdir().unwrap();
+    let store = Arc::new(SpanStore::open(spans_dir.path()).unwrap());
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let endpoint = format!("http://{}", listener.local_addr().unwrap());
+    let token = vlnav_runtime::CancellationToken::new();
+    tokio::spawn(serve_receiver(listener, store.clone(), token.clone()));
+    // SAFETY: this test binary holds one test; nothing else reads the environment yet.
+    unsafe { std::env::set_var("OTEL_EXPORTER_OTLP_ENDPOINT", &endpoint) };
+    let telemetry = vlnav_runtime::telemetry::init("vlnav-e2e").unwrap();
+
+    let t = TestStack::start(|_| {}).await;
+    let mut missions = t.missions().await;
+    let submitted = missions
+        .submit_mission(SubmitMissionRequest {
+            robot_id: "husky-1".into(),
+            instruction: Some(Instruction::Text("take a left turn, move 4 m ahead, then find the standing person".into())),
+            dry_run: false,
+        })
+        .await
+        .unwrap()
+        .into_inner();
+    let (_, mission) = t.follow(&submitted.mission_id, Duration::from_secs(300)).await;
+    assert_eq!(mission.state, MissionState::Succeeded as i32, "{}", mission.reason);
+    assert_eq!(mission.trace_id.len(), 32);
+
+    telemetry.flush();
+    let mut spans: Vec<Span> = Vec::new();
+    for _ in 0..100 {
+        spans = store.spans_of_trace(&mission.trace_id).unwrap();
+        if spans.iter().any(|s| s.name == "mission") {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let by_id: HashMap<&str, &Span> = spans.iter().map(|s| (s.span_id.as_str(), s)).collect();
+    let parent_name = |s: &Span| s.parent_id.as_deref().and_then(|p| by_id.get(p)).map(|p| p.name.as_str());
+    let named = |n: &str| spans.iter().filter(move |s| s.name == n);
+
+    for stage in ["mission", "plan", "step", "control-cycle", "detect", "segment", "subgoal", "local-plan", "edge-forward"] {
+        assert!(named(stage).count() > 0, "no `{stage}` span in the mission's trace ({} spans)", spans.len());
+    }
+    assert!(spans.iter().all(|s| s.trace_id == mission.trace_id));
+    let mission_span = named("mission").next().unwrap();
+    // The planner's server span hangs off the mission span (the planner call is made inside it).
+    assert!(named("plan").all(|s| parent_name(s) == Some("mission")), "plan spans are children of the mission");
+    assert!(named("step").all(|s| s.parent_id.as_deref() == Some(mission_span.span_id.as_str())));
+    assert!(named("control-cycle").all(|s| parent_name(s) == Some("step")));
+    for stage in ["detect", "segment", "local-plan", "edge-forward"] {
+        assert!(named(stage).all(|s| parent_name(s) == Some("control-cycle")), "`{stage}` spans are children of a control cycle");
+    }
+    // MOVE goals are computed at step start, FIND goals in the cycle.
+    assert!(named("subgoal").all(|s| matches!(parent_name(s), Some("control-cycle" | "step"))));
+    // Services report who they are.
+    let services: Vec<&str> = spans.iter().filter_map(|s| match s.attributes.get("rpc.service") {
+        Some(vlnav_traces::AttrValue::Str(v)) => Some(v.as_str()),
+        _ => None,
+    }).collect();
+    for svc in ["vlnav.v1.PlannerService", "vlnav.v1.DetectorService", "vlnav.v1.SubgoalService", "vlnav.v1.LocalPlannerService"] {
+        assert!(services.contains(&svc), "no server span of {svc}");
+    }
+    t.stack.shutdown().await.unwrap();
+    token.cancel();
+}
