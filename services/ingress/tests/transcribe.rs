@@ -1,0 +1,71 @@
+//! Spoken instructions (espeak-ng) through a real ingress server: the
+//! transcripts must be close to what was said, in every accepted encoding.
+
+mod common;
+
+use common::{INSTRUCTIONS, chunks, options, serve, speak, transcribe};
+use vlnav_ingress::audio::{SampleEncoding, decode_wav, encode_wav};
+use vlnav_ingress::wer::{scoring_words, word_error_rate};
+use vlnav_proto::v1::AudioFormat;
+
+/// Largest word error rate accepted for one sentence (after normalisation).
+const MAX_WER: f64 = 0.35;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn spoken_instructions_are_transcribed_closely() {
+    let mut served = serve(options()).await;
+    let mut rates = Vec::new();
+    let mut report = String::from("\nword error rate per sentence (Whisper tiny.en, espeak-ng en-us):\n");
+    for text in INSTRUCTIONS {
+        let wav = speak(text);
+        let input_s = decode_wav(&wav).unwrap().duration_s();
+        let t = transcribe(&mut served.client, chunks(AudioFormat::Wav, 0, &wav, 8 * 1024)).await.unwrap();
+        let wer = word_error_rate(text, &t.text);
+        report.push_str(&format!("  {wer:.3}  {:.1} s speech  said: {text}\n              heard: {}\n", t.audio_seconds, t.text));
+        assert_eq!(t.model, "whisper-tiny.en");
+        assert!(t.audio_seconds > 0.5 && t.audio_seconds <= input_s, "speech {} s of {input_s} s", t.audio_seconds);
+        rates.push(wer);
+    }
+    let mean = rates.iter().sum::<f64>() / rates.len() as f64;
+    report.push_str(&format!("  mean {mean:.3} over {} sentences\n", rates.len()));
+    eprintln!("{report}");
+    for (wer, text) in rates.iter().zip(INSTRUCTIONS) {
+        assert!(*wer <= MAX_WER, "WER {wer:.3} > {MAX_WER} for {text:?}{report}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_accepted_encoding_gives_the_words() {
+    let mut served = serve(options()).await;
+    let text = INSTRUCTIONS[2];
+    let wav = speak(text);
+    let pcm = decode_wav(&wav).unwrap();
+    assert_eq!(pcm.sample_rate, 22_050, "espeak-ng writes 22.05 kHz");
+
+    // Raw PCM16 at the synthesiser's rate, in small chunks.
+    let raw: Vec<u8> = pcm.samples.iter().flat_map(|s| ((s * 32_767.0).round() as i16).to_le_bytes()).collect();
+    // A 44.1 kHz stereo float WAV (each sample held for two periods — a
+    // crude upsampler, independent of the service's own).
+    let stereo: Vec<f32> = pcm.samples.iter().flat_map(|s| [*s, *s, *s, *s]).collect();
+    let float_stereo = encode_wav(&stereo, 2, 44_100, SampleEncoding::F32);
+    // 24-bit mono at the original rate.
+    let pcm24 = encode_wav(&pcm.samples, 1, 22_050, SampleEncoding::I24);
+
+    for (what, request) in [
+        ("raw PCM16 mono 22.05 kHz", chunks(AudioFormat::Pcm16Mono, 22_050, &raw, 3_000)),
+        ("WAV float32 stereo 44.1 kHz", chunks(AudioFormat::Wav, 0, &float_stereo, 64 * 1024)),
+        ("WAV PCM24 mono 22.05 kHz, 5-byte chunks for the header", {
+            let mut c = chunks(AudioFormat::Wav, 0, &pcm24[..40], 5);
+            c.extend(chunks(AudioFormat::Wav, 0, &pcm24[40..], 16 * 1024).into_iter().map(|mut k| {
+                k.format = 0;
+                k
+            }));
+            c
+        }),
+    ] {
+        let t = transcribe(&mut served.client, request).await.unwrap_or_else(|s| panic!("{what}: {s:?}"));
+        let wer = word_error_rate(text, &t.text);
+        eprintln!("{what}: WER {wer:.3}: {}", t.text);
+        assert!(wer <= MAX_WER, "{what}: WER {wer:.3}: heard {:?} ({:?})", t.text, scoring_words(&t.text));
+    }
+}

@@ -1,0 +1,79 @@
+//! The task that owns every robot's state (latest cloud, last path, speed,
+//! progress window) and the cloud-building buffers; one plan per request.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+
+use tokio::sync::{mpsc, oneshot};
+use vlnav_runtime::actor::Mailbox;
+use vlnav_subgoal::camera::{Camera, DepthView};
+use vlnav_subgoal::geometry::{GoalSpec, Pose2};
+
+use crate::cloud::{CloudBuilder, CloudParams};
+use crate::control::{FollowParams, RobotState, StepInput, StepOutput};
+use crate::planner::Planner;
+
+/// One validated frame and goal.
+pub struct StepRequest {
+    pub robot_id: String,
+    pub stamp: f64,
+    pub pose: Pose2,
+    pub camera: Camera,
+    /// Little-endian u16 mm, already checked against the camera size.
+    pub depth_mm: Vec<u8>,
+    pub goal: GoalSpec,
+    pub no_go: Vec<[f64; 3]>,
+    pub max_speed: f64,
+}
+
+/// A step's result and the size of the cloud it planned in.
+pub struct StepReply {
+    pub output: StepOutput,
+    pub obstacle_cells: usize,
+}
+
+pub enum Msg {
+    Step { request: Box<StepRequest>, reply: oneshot::Sender<StepReply> },
+    /// Replies whether the robot had state.
+    Reset { robot_id: String, reply: oneshot::Sender<bool> },
+}
+
+struct Actor {
+    planner: Arc<Planner>,
+    follow: FollowParams,
+    builder: CloudBuilder,
+    robots: HashMap<String, RobotState>,
+}
+
+/// Spawns the planner actor and returns its mailbox.
+pub fn spawn(planner: Arc<Planner>, follow: FollowParams, cloud: CloudParams) -> Mailbox<Msg> {
+    let (mailbox, rx) = Mailbox::channel("local-planner", 64);
+    let actor = Actor { planner, follow, builder: CloudBuilder::new(cloud), robots: HashMap::new() };
+    tokio::spawn(run(actor, rx));
+    mailbox
+}
+
+async fn run(mut a: Actor, mut rx: mpsc::Receiver<Msg>) {
+    while let Some(msg) = rx.recv().await {
+        match msg {
+            Msg::Step { request, reply } => {
+                let r = *request;
+                let cloud = match DepthView::new(r.camera.width, r.camera.height, &r.depth_mm) {
+                    Ok(depth) => a.builder.from_depth(&r.camera, &depth, &r.no_go),
+                    // The tonic layer checked the size; an empty cloud is the safe fallback.
+                    Err(_) => a.builder.from_points(&[], &r.no_go),
+                };
+                let state = a.robots.entry(r.robot_id).or_default();
+                let output = state.step(
+                    &a.planner,
+                    &a.follow,
+                    StepInput { stamp: r.stamp, pose: r.pose, goal: r.goal, cloud: &cloud, max_speed: r.max_speed },
+                );
+                let _ = reply.send(StepReply { output, obstacle_cells: cloud.cells.len() });
+            }
+            Msg::Reset { robot_id, reply } => {
+                let _ = reply.send(a.robots.remove(&robot_id).is_some());
+            }
+        }
+    }
+}

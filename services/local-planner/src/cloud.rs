@@ -1,0 +1,306 @@
+//! The obstacle cloud of one frame, in `base_link`.
+//!
+//! Depth pixels (every `stride`-th row and column) are back-projected and
+//! moved to `base_link` with the camera mount; heights are measured above the
+//! floor (`ground_z` in `base_link`, 0 when `base_link` sits on the floor).
+//! Like CMU's terrain classification: below `ground_height` a point is floor;
+//! up to `obstacle_height` it is a low, traversable bump that only adds a
+//! penalty; above it blocks; above `max_height` it is overhead (ceilings,
+//! overhangs the robot passes under) and ignored. Points are downsampled on a
+//! 3-D voxel grid (0.05 m) and collapsed to 2-D cells that remember how many
+//! voxels above `obstacle_height` they hold, so the planner's "≥ 2 points
+//! block a path" rule counts distinct voxels, not pixels. The segmenter's
+//! virtual no-go points become cells of their own kind: they block and feed
+//! the semantic cost.
+
+use nalgebra::Vector3;
+use vlnav_subgoal::camera::{Camera, DepthView};
+
+/// Height classification and downsampling settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CloudParams {
+    /// z of the floor in `base_link`, m.
+    pub ground_z: f64,
+    /// Below this height a point is floor, m.
+    pub ground_height: f64,
+    /// Above this height a point blocks; between the two it adds a penalty, m.
+    pub obstacle_height: f64,
+    /// Above this height a point is overhead and ignored, m.
+    pub max_height: f64,
+    /// Points farther than this (horizontally) are ignored, m (CMU adjacentRange).
+    pub max_range: f64,
+    /// Downsampling voxel, m.
+    pub voxel: f64,
+    /// Use every `stride`-th depth row and column.
+    pub stride: usize,
+}
+
+impl Default for CloudParams {
+    fn default() -> Self {
+        Self {
+            ground_z: 0.0,
+            ground_height: 0.10,
+            obstacle_height: 0.15,
+            max_height: 1.2,
+            max_range: 4.25,
+            voxel: 0.05,
+            stride: 4,
+        }
+    }
+}
+
+/// One occupied 2-D cell.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Cell {
+    pub x: f32,
+    pub y: f32,
+    /// Distinct voxels above `obstacle_height` in this column (saturating).
+    pub blocking: u8,
+    /// Whether a low (penalty) voxel is in the column.
+    pub low: bool,
+    /// A virtual point from the segmenter's no-go mask.
+    pub no_go: bool,
+}
+
+/// The downsampled obstacles of one frame.
+#[derive(Clone, Debug, Default)]
+pub struct ObstacleCloud {
+    pub cells: Vec<Cell>,
+    /// Points that survived the height and range filters (before downsampling).
+    pub raw_points: usize,
+}
+
+impl ObstacleCloud {
+    pub fn blocking_cells(&self) -> usize {
+        self.cells.iter().filter(|c| c.blocking > 0).count()
+    }
+}
+
+/// Reusable downsampling buffers (a dense voxel bitmap around the robot).
+#[derive(Clone, Debug)]
+pub struct CloudBuilder {
+    params: CloudParams,
+    nx: usize,
+    ny: usize,
+    nz: usize,
+    x0: f64,
+    y0: f64,
+    occupied: Vec<u64>,
+    column: Vec<u32>,
+    cells: Vec<Cell>,
+    raw: usize,
+}
+
+const NO_CELL: u32 = u32::MAX;
+
+impl CloudBuilder {
+    pub fn new(params: CloudParams) -> Self {
+        let r = params.max_range;
+        let nx = ((2.0 * r) / params.voxel).ceil() as usize + 1;
+        let ny = nx;
+        let nz = (((params.max_height - params.ground_height) / params.voxel).ceil() as usize).max(1) + 1;
+        Self {
+            params,
+            nx,
+            ny,
+            nz,
+            x0: -r,
+            y0: -r,
+            occupied: vec![0; (nx * ny * nz).div_ceil(64)],
+            column: vec![NO_CELL; nx * ny],
+            cells: Vec::new(),
+            raw: 0,
+        }
+    }
+
+    pub fn params(&self) -> &CloudParams {
+        &self.params
+    }
+
+    fn clear(&mut self) {
+        for c in &self.cells {
+            let ix = ((c.x as f64 - self.x0) / self.params.voxel) as usize;
+            let iy = ((c.y as f64 - self.y0) / self.params.voxel) as usize;
+            self.column[ix * self.ny + iy] = NO_CELL;
+        }
+        self.cells.clear();
+        self.occupied.fill(0);
+        self.raw = 0;
+    }
+
+    fn cell_mut(&mut self, ix: usize, iy: usize) -> &mut Cell {
+        let slot = ix * self.ny + iy;
+        if self.column[slot] == NO_CELL {
+            self.column[slot] = self.cells.len() as u32;
+            let v = self.params.voxel;
+            self.cells.push(Cell {
+                x: (self.x0 + (ix as f64 + 0.5) * v) as f32,
+                y: (self.y0 + (iy as f64 + 0.5) * v) as f32,
+                blocking: 0,
+                low: false,
+                no_go: false,
+            });
+        }
+        let i = self.column[slot] as usize;
+        &mut self.cells[i]
+    }
+
+    fn column_of(&self, x: f64, y: f64) -> Option<(usize, usize)> {
+        let fx = (x - self.x0) / self.params.voxel;
+        let fy = (y - self.y0) / self.params.voxel;
+        if fx >= 0.0 && fy >= 0.0 && (fx as usize) < self.nx && (fy as usize) < self.ny {
+            Some((fx as usize, fy as usize))
+        } else {
+            None
+        }
+    }
+
+    /// Adds one `base_link` point (height classified against the floor).
+    #[inline]
+    pub fn add_point(&mut self, x: f64, y: f64, z: f64) {
+        let p = &self.params;
+        let h = z - p.ground_z;
+        if !(h >= p.ground_height && h <= p.max_height) || x * x + y * y > p.max_range * p.max_range {
+            return;
+        }
+        let Some((ix, iy)) = self.column_of(x, y) else { return };
+        self.raw += 1;
+        let iz = (((h - p.ground_height) / p.voxel) as usize).min(self.nz - 1);
+        let bit = (ix * self.ny + iy) * self.nz + iz;
+        let (w, b) = (bit / 64, 1u64 << (bit % 64));
+        if self.occupied[w] & b != 0 {
+            return;
+        }
+        self.occupied[w] |= b;
+        let blocking = h > p.obstacle_height;
+        let cell = self.cell_mut(ix, iy);
+        if blocking {
+            cell.blocking = cell.blocking.saturating_add(1);
+        } else {
+            cell.low = true;
+        }
+    }
+
+    /// Adds a virtual no-go point (any height: it always blocks).
+    pub fn add_no_go(&mut self, x: f64, y: f64) {
+        if x * x + y * y > self.params.max_range * self.params.max_range {
+            return;
+        }
+        if let Some((ix, iy)) = self.column_of(x, y) {
+            self.cell_mut(ix, iy).no_go = true;
+        }
+    }
+
+    /// Adds the depth frame's points.
+    pub fn add_depth(&mut self, cam: &Camera, depth: &DepthView<'_>) {
+        let k = cam.intrinsics;
+        let t = cam.mount.optical_to_base();
+        let stride = self.params.stride.max(1);
+        let (lo, hi) = (cam.depth_min_m * 1000.0, cam.depth_max_m * 1000.0);
+        for v in (0..depth.height()).step_by(stride) {
+            let yn = (v as f64 - k.cy) / k.fy;
+            for u in (0..depth.width()).step_by(stride) {
+                let mm = depth.mm(u, v);
+                let z = mm as f64;
+                if mm == 0 || z <= lo || z >= hi {
+                    continue;
+                }
+                let zm = z / 1000.0;
+                let p = t.apply(&Vector3::new((u as f64 - k.cx) / k.fx * zm, yn * zm, zm));
+                self.add_point(p.x, p.y, p.z);
+            }
+        }
+    }
+
+    /// Builds a cloud from `base_link` points and no-go points (benchmarks, tests).
+    pub fn from_points(&mut self, points: &[[f64; 3]], no_go: &[[f64; 3]]) -> ObstacleCloud {
+        self.clear();
+        for p in points {
+            self.add_point(p[0], p[1], p[2]);
+        }
+        for p in no_go {
+            self.add_no_go(p[0], p[1]);
+        }
+        self.finish()
+    }
+
+    /// Builds a cloud from a depth frame and no-go points.
+    pub fn from_depth(&mut self, cam: &Camera, depth: &DepthView<'_>, no_go: &[[f64; 3]]) -> ObstacleCloud {
+        self.clear();
+        self.add_depth(cam, depth);
+        for p in no_go {
+            self.add_no_go(p[0], p[1]);
+        }
+        self.finish()
+    }
+
+    fn finish(&mut self) -> ObstacleCloud {
+        ObstacleCloud { cells: self.cells.clone(), raw_points: self.raw }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlnav_subgoal::camera::{Intrinsics, Mount, encode_depth_mm};
+
+    #[test]
+    fn heights_split_floor_penalty_blocking_and_overhead() {
+        let mut b = CloudBuilder::new(CloudParams::default());
+        let c = b.from_points(
+            &[
+                [2.0, 0.0, 0.05], // floor
+                [2.0, 1.0, 0.12], // low bump
+                [2.0, -1.0, 0.5], // obstacle
+                [2.0, -1.0, 0.51], // same voxel: counted once
+                [2.0, -1.0, 0.7], // same column, another voxel
+                [2.0, 2.0, 2.0],  // overhead
+                [6.0, 0.0, 0.5],  // out of range
+            ],
+            &[[1.0, 0.5, 0.5]],
+        );
+        assert_eq!(c.raw_points, 4);
+        assert_eq!(c.cells.len(), 3);
+        let low = c.cells.iter().find(|c| c.low).unwrap();
+        assert_eq!(low.blocking, 0);
+        assert!((low.y - 1.0).abs() < 0.05);
+        let obstacle = c.cells.iter().find(|c| c.blocking > 0).unwrap();
+        assert_eq!(obstacle.blocking, 2);
+        assert!(c.cells.iter().any(|c| c.no_go && c.blocking == 0));
+        // A rebuilt cloud starts empty.
+        let c = b.from_points(&[[1.0, 0.0, 0.3]], &[]);
+        assert_eq!(c.cells.len(), 1);
+        assert_eq!(c.cells[0].blocking, 1);
+    }
+
+    #[test]
+    fn depth_frame_of_a_wall_and_floor_becomes_wall_cells_only() {
+        // Camera 0.5 m up looking level; a wall 2 m ahead, the floor below the horizon.
+        let cam = Camera {
+            width: 64,
+            height: 48,
+            intrinsics: Intrinsics { fx: 40.0, fy: 40.0, cx: 31.5, cy: 23.5 },
+            mount: Mount { translation: Vector3::new(0.2, 0.0, 0.5), ..Mount::default() },
+            depth_min_m: 0.3,
+            depth_max_m: 10.0,
+        };
+        let mut depth = vec![0.0; 64 * 48];
+        for v in 0..48 {
+            for u in 0..64 {
+                let yn = (v as f64 - 23.5) / 40.0;
+                // Floor hit when the ray goes down before reaching the wall.
+                let floor_z = if yn > 0.0 { 0.5 / yn } else { f64::INFINITY };
+                depth[v * 64 + u] = floor_z.min(1.8);
+            }
+        }
+        let bytes = encode_depth_mm(&depth);
+        let view = DepthView::new(64, 48, &bytes).unwrap();
+        let mut b = CloudBuilder::new(CloudParams { stride: 1, ..CloudParams::default() });
+        let c = b.from_depth(&cam, &view, &[]);
+        assert!(!c.cells.is_empty());
+        for cell in &c.cells {
+            assert!((cell.x - 2.0).abs() < 0.06, "cell at x {}", cell.x);
+        }
+        assert!(c.cells.iter().any(|c| c.blocking >= 2));
+    }
+}

@@ -1,0 +1,223 @@
+//! One robot's planning step: goal checks, rotate-in-place, path selection,
+//! path following to (v, ω) and the progress watchdog. Time comes only from
+//! frame stamps.
+//!
+//! - Reached: within `goal.position_tolerance`, or for a pure rotation a yaw
+//!   error below `goal.yaw_tolerance`.
+//! - Rotate in place (the authors' rule) while the goal is more than
+//!   `rotate_threshold` (1.0 rad) off the heading, `ω = 0.8·error`, until it is
+//!   within `rotate_exit` (0.3 rad, hysteresis so the paths take over inside
+//!   the camera's view).
+//! - Path following (CMU's path follower): the look-ahead point is where the
+//!   chosen path crosses 0.5 m from the robot; `ω = 7.5·bearing`, clamped to
+//!   the yaw-rate limit and to what turns onto the bearing within one frame
+//!   period (at 5 fps the CMU gain alone would overshoot); speed ramps up by
+//!   `max_accel·dt` only while the bearing is below 0.1 rad, otherwise down,
+//!   and slows within `slow_down_distance` of the goal.
+//! - No progress: while moving, if the distance to the goal has not dropped
+//!   by `progress_distance` (0.1 m) within `progress_window_s` (5 s of sensor
+//!   time), the step reports NO_PROGRESS once with a stop and the window
+//!   restarts, so the mission executor can recover instead of hanging.
+
+use nalgebra::Vector2;
+use vlnav_subgoal::geometry::{GoalSpec, Pose2, wrap_angle};
+
+use crate::cloud::ObstacleCloud;
+use crate::planner::{Planner, Scratch, Selection};
+
+/// Path-following and watchdog settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FollowParams {
+    pub look_ahead_m: f64,
+    pub yaw_gain: f64,
+    /// Husky A200 limits.
+    pub max_speed: f64,
+    pub max_yaw_rate: f64,
+    pub max_accel: f64,
+    /// Speed ramps up only while the look-ahead bearing is below this, rad.
+    pub align_threshold: f64,
+    pub rotate_threshold: f64,
+    pub rotate_exit: f64,
+    pub rotate_gain: f64,
+    pub slow_down_distance: f64,
+    pub progress_distance: f64,
+    pub progress_window_s: f64,
+    /// Frame period assumed before two stamps are known, s (the authors' 5 fps).
+    pub nominal_period_s: f64,
+}
+
+impl Default for FollowParams {
+    fn default() -> Self {
+        Self {
+            look_ahead_m: 0.5,
+            yaw_gain: 7.5,
+            max_speed: 1.0,
+            max_yaw_rate: 1.57,
+            max_accel: 1.0,
+            align_threshold: 0.1,
+            rotate_threshold: 1.0,
+            rotate_exit: 0.3,
+            rotate_gain: 0.8,
+            slow_down_distance: 1.0,
+            progress_distance: 0.1,
+            progress_window_s: 5.0,
+            nominal_period_s: 0.2,
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StepStatus {
+    Moving,
+    Rotating,
+    Reached,
+    Blocked,
+    NoProgress,
+}
+
+/// What one frame asks of the planner.
+#[derive(Clone, Debug)]
+pub struct StepInput<'a> {
+    pub stamp: f64,
+    pub pose: Pose2,
+    pub goal: GoalSpec,
+    pub cloud: &'a ObstacleCloud,
+    /// Cruise speed (≤ 0: the top speed), m/s.
+    pub max_speed: f64,
+}
+
+/// The command and what led to it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepOutput {
+    pub linear: f64,
+    pub angular: f64,
+    pub status: StepStatus,
+    pub selection: Option<Selection>,
+    pub path_scale: f64,
+    pub distance_to_goal: f64,
+    /// Bearing of the goal from the heading (rotation goals: the yaw error), rad.
+    pub heading_error: f64,
+    pub free_paths: usize,
+}
+
+/// The state a robot keeps between frames.
+#[derive(Clone, Debug, Default)]
+pub struct RobotState {
+    last_stamp: Option<f64>,
+    last_speed: f64,
+    rotating: bool,
+    /// Best distance of the current window and the stamp it was reached.
+    progress: Option<(f64, f64)>,
+    last_goal: Option<GoalSpec>,
+    /// The latest obstacle cloud and chosen path.
+    pub cloud: ObstacleCloud,
+    pub last_selection: Option<Selection>,
+    scratch: Scratch,
+}
+
+fn clamp_turn(rate: f64, error: f64, limit: f64, dt: f64) -> f64 {
+    // Never turn past the target bearing within one frame period.
+    let cap = limit.min(error.abs() / dt.max(1e-3));
+    rate.clamp(-cap, cap)
+}
+
+impl RobotState {
+    /// Plans one step. `cloud` replaces the stored cloud.
+    pub fn step(&mut self, planner: &Planner, p: &FollowParams, input: StepInput<'_>) -> StepOutput {
+        let dt = match self.last_stamp {
+            Some(t) if input.stamp > t && input.stamp - t < 2.0 => input.stamp - t,
+            _ => p.nominal_period_s,
+        };
+        self.last_stamp = Some(input.stamp);
+        if self.last_goal != Some(input.goal) {
+            self.last_goal = Some(input.goal);
+            self.progress = None;
+            self.rotating = false;
+        }
+        self.cloud = input.cloud.clone();
+        let goal = input.goal;
+        let goal_base = input.pose.odom_to_base(&goal.pose.position());
+        let distance = goal_base.norm();
+        let bearing = if distance > 1e-9 { goal_base.y.atan2(goal_base.x) } else { 0.0 };
+        let mut out = StepOutput {
+            linear: 0.0,
+            angular: 0.0,
+            status: StepStatus::Reached,
+            selection: None,
+            path_scale: 0.0,
+            distance_to_goal: distance,
+            heading_error: bearing,
+            free_paths: 0,
+        };
+        let stop = |s: &mut Self, mut out: StepOutput, status: StepStatus| {
+            s.last_speed = 0.0;
+            s.progress = None;
+            out.status = status;
+            out
+        };
+        if goal.rotation_only {
+            let yaw_error = wrap_angle(goal.pose.theta - input.pose.theta);
+            out.heading_error = yaw_error;
+            if yaw_error.abs() < goal.yaw_tolerance {
+                return stop(self, out, StepStatus::Reached);
+            }
+            out.angular = clamp_turn(p.rotate_gain * yaw_error, yaw_error, p.max_yaw_rate, dt);
+            return stop(self, out, StepStatus::Rotating);
+        }
+        if distance <= goal.position_tolerance {
+            self.rotating = false;
+            return stop(self, out, StepStatus::Reached);
+        }
+        let exit = if self.rotating { p.rotate_exit } else { p.rotate_threshold };
+        self.rotating = bearing.abs() > exit;
+        if self.rotating {
+            out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p.max_yaw_rate, dt);
+            return stop(self, out, StepStatus::Rotating);
+        }
+
+        let speed = if input.max_speed > 0.0 { input.max_speed.min(p.max_speed) } else { p.max_speed };
+        let plan = planner.plan(input.cloud, goal_base, speed / p.max_speed, &mut self.scratch);
+        out.free_paths = plan.free_paths;
+        out.path_scale = plan.scale;
+        let Some(sel) = plan.selection else {
+            self.last_selection = None;
+            return stop(self, out, StepStatus::Blocked);
+        };
+        let look = sel
+            .points
+            .iter()
+            .find(|q| q.norm() >= p.look_ahead_m)
+            .or(sel.points.last())
+            .copied()
+            .unwrap_or_else(|| Vector2::new(1.0, 0.0));
+        let dir = look.y.atan2(look.x);
+        out.angular = clamp_turn(p.yaw_gain * dir, dir, p.max_yaw_rate, dt);
+        let target = speed * (distance / p.slow_down_distance).min(1.0);
+        let v = if dir.abs() < p.align_threshold {
+            (self.last_speed + p.max_accel * dt).min(target)
+        } else {
+            (self.last_speed - p.max_accel * dt).max(0.0).min(target)
+        };
+        out.linear = v;
+        out.selection = Some(sel.clone());
+        self.last_selection = Some(sel);
+        out.status = StepStatus::Moving;
+
+        // Progress watchdog, sensor time.
+        match self.progress {
+            None => self.progress = Some((distance, input.stamp)),
+            Some((best, _)) if distance <= best - p.progress_distance => self.progress = Some((distance, input.stamp)),
+            Some((_, since)) if input.stamp - since >= p.progress_window_s => {
+                self.progress = Some((distance, input.stamp));
+                self.last_speed = 0.0;
+                out.linear = 0.0;
+                out.angular = 0.0;
+                out.status = StepStatus::NoProgress;
+                return out;
+            }
+            Some(_) => {}
+        }
+        self.last_speed = v;
+        out
+    }
+}

@@ -1,0 +1,140 @@
+//! The thin tonic layer of `vlnav.v1.LocalPlannerService`: validate, convert
+//! proto → domain, call the actor, convert back.
+
+use tonic::{Request, Response, Status};
+use vlnav_proto::v1 as pb;
+use vlnav_proto::v1::local_planner_service_server::LocalPlannerService;
+use vlnav_runtime::actor::{ActorGone, Mailbox};
+use vlnav_subgoal::geometry::{GoalSpec, Pose2};
+use vlnav_subgoal::grpc::{DepthDefaults, InvalidField, camera_from_proto, depth_from_proto, pose_from_proto};
+
+use crate::actor::{Msg, StepReply, StepRequest};
+use crate::control::StepStatus;
+
+/// Every way a local-planner request can fail.
+#[derive(Debug, thiserror::Error)]
+pub enum LocalPlannerError {
+    #[error("invalid {field}: {reason}")]
+    InvalidArgument { field: String, reason: String },
+    #[error(transparent)]
+    ActorGone(#[from] ActorGone),
+}
+
+impl From<InvalidField> for LocalPlannerError {
+    fn from(e: InvalidField) -> Self {
+        Self::InvalidArgument { field: e.field, reason: e.reason }
+    }
+}
+
+impl From<LocalPlannerError> for Status {
+    fn from(e: LocalPlannerError) -> Self {
+        match e {
+            LocalPlannerError::InvalidArgument { .. } => Status::invalid_argument(e.to_string()),
+            LocalPlannerError::ActorGone(g) => g.into(),
+        }
+    }
+}
+
+fn invalid(field: &str, reason: impl Into<String>) -> LocalPlannerError {
+    LocalPlannerError::InvalidArgument { field: field.to_string(), reason: reason.into() }
+}
+
+fn goal_from_proto(g: Option<&pb::Goal>) -> Result<GoalSpec, LocalPlannerError> {
+    let g = g.ok_or_else(|| invalid("goal", "is required (odom pose and tolerances, from the subgoal service)"))?;
+    let pose: Pose2 = pose_from_proto(g.pose.as_ref(), "goal.pose")?;
+    if g.rotation_only {
+        if !(g.yaw_tolerance.is_finite() && g.yaw_tolerance > 0.0) {
+            return Err(invalid("goal.yaw_tolerance", format!("must be a positive angle in radians for a rotation, got {}", g.yaw_tolerance)));
+        }
+    } else if !(g.position_tolerance.is_finite() && g.position_tolerance > 0.0) {
+        return Err(invalid("goal.position_tolerance", format!("must be a positive distance in metres, got {}", g.position_tolerance)));
+    }
+    Ok(GoalSpec {
+        pose,
+        position_tolerance: if g.position_tolerance.is_finite() { g.position_tolerance.max(0.0) } else { 0.0 },
+        yaw_tolerance: if g.yaw_tolerance.is_finite() { g.yaw_tolerance.max(0.0) } else { 0.0 },
+        rotation_only: g.rotation_only,
+    })
+}
+
+/// Validates a request into the actor's step (no copy of the depth bytes).
+pub fn step_request(r: pb::PlanStepRequest, depth_defaults: DepthDefaults) -> Result<StepRequest, LocalPlannerError> {
+    if r.robot_id.trim().is_empty() {
+        return Err(invalid("robot_id", "must name the robot (e.g. \"husky-1\")"));
+    }
+    let mut frame = r.frame.ok_or_else(|| invalid("frame", "is required (depth, camera, odom pose and stamp of the current frame)"))?;
+    if !frame.robot_id.is_empty() && frame.robot_id != r.robot_id {
+        return Err(invalid("frame.robot_id", format!("is {:?} but the request is for {:?}", frame.robot_id, r.robot_id)));
+    }
+    if !frame.stamp.is_finite() {
+        return Err(invalid("frame.stamp", format!("must be a finite sensor time in seconds, got {}", frame.stamp)));
+    }
+    let camera = camera_from_proto(frame.camera.as_ref(), "frame.camera", depth_defaults)?;
+    depth_from_proto(frame.depth.as_ref(), &camera, "frame.depth")?;
+    let pose = pose_from_proto(frame.odom.as_ref(), "frame.odom")?;
+    let goal = goal_from_proto(r.goal.as_ref())?;
+    if !(r.max_speed.is_finite() && r.max_speed >= 0.0) {
+        return Err(invalid("max_speed", format!("must be a finite speed ≥ 0 in m/s (0: default), got {}", r.max_speed)));
+    }
+    let mut no_go = Vec::with_capacity(r.no_go_points.len());
+    for (i, p) in r.no_go_points.iter().enumerate() {
+        if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
+            return Err(invalid(&format!("no_go_points[{i}]"), format!("must be finite base_link coordinates, got ({}, {}, {})", p.x, p.y, p.z)));
+        }
+        no_go.push([p.x, p.y, p.z]);
+    }
+    let depth_mm = std::mem::take(&mut frame.depth.as_mut().expect("checked above").data_mm);
+    Ok(StepRequest { robot_id: r.robot_id, stamp: frame.stamp, pose, camera, depth_mm, goal, no_go, max_speed: r.max_speed })
+}
+
+fn reply_to_proto(r: StepReply) -> pb::PlanStepResponse {
+    let o = r.output;
+    let status = match o.status {
+        StepStatus::Moving => pb::LocalPlanStatus::Moving,
+        StepStatus::Rotating => pb::LocalPlanStatus::Rotating,
+        StepStatus::Reached => pb::LocalPlanStatus::Reached,
+        StepStatus::Blocked => pb::LocalPlanStatus::Blocked,
+        StepStatus::NoProgress => pb::LocalPlanStatus::NoProgress,
+    };
+    let (path_id, rotation_index, cost) = match &o.selection {
+        Some(s) => (s.path as i32, s.rotation as i32, s.cost),
+        None => (-1, -1, 0.0),
+    };
+    pb::PlanStepResponse {
+        cmd: Some(pb::Twist2D { linear: o.linear, angular: o.angular }),
+        status: status as i32,
+        path_id,
+        rotation_index,
+        path_scale: o.selection.as_ref().map_or(o.path_scale, |s| s.scale),
+        cost,
+        distance_to_goal: o.distance_to_goal,
+        heading_error: o.heading_error,
+        obstacle_points: r.obstacle_cells as u32,
+        free_paths: o.free_paths as u32,
+    }
+}
+
+/// The service; cheap to clone.
+#[derive(Clone)]
+pub struct LocalPlanner {
+    pub(crate) mailbox: Mailbox<Msg>,
+    pub(crate) depth_defaults: DepthDefaults,
+}
+
+#[tonic::async_trait]
+impl LocalPlannerService for LocalPlanner {
+    async fn plan_step(&self, request: Request<pb::PlanStepRequest>) -> Result<Response<pb::PlanStepResponse>, Status> {
+        let step = Box::new(step_request(request.into_inner(), self.depth_defaults)?);
+        let reply = self.mailbox.call(|reply| Msg::Step { request: step, reply }).await.map_err(LocalPlannerError::from)?;
+        Ok(Response::new(reply_to_proto(reply)))
+    }
+
+    async fn reset_robot(&self, request: Request<pb::ResetRobotRequest>) -> Result<Response<pb::ResetRobotResponse>, Status> {
+        let robot_id = request.into_inner().robot_id;
+        if robot_id.trim().is_empty() {
+            return Err(invalid("robot_id", "must name the robot whose state to forget").into());
+        }
+        self.mailbox.call(|reply| Msg::Reset { robot_id, reply }).await.map_err(LocalPlannerError::from)?;
+        Ok(Response::new(pb::ResetRobotResponse {}))
+    }
+}

@@ -1,0 +1,238 @@
+//! Grounding a spoken target phrase to a COCO-80 class id: exact names and a
+//! synonyms table first (deterministic, microseconds), then semantic
+//! similarity with all-MiniLM-L6-v2 against every class name and synonym.
+//! Below [`DEFAULT_THRESHOLD`] the phrase is not grounded and the planner
+//! asks instead of guessing.
+
+use vlnav_proto::coco;
+
+use crate::minilm::{EmbedError, MiniLm, cosine};
+
+/// Cosine similarity a phrase needs to the closest class name or synonym
+/// for semantic grounding. Tuned on the phrases in `tests/grounding.rs`:
+/// paraphrases of COCO objects score 0.62–0.93 against their class
+/// (lowest: "notebook computer" 0.62 to "laptop"), places and non-COCO
+/// landmarks at most 0.55 ("lotus statue"); 0.6 separates them.
+pub const DEFAULT_THRESHOLD: f32 = 0.6;
+
+/// Phrases (lower case) that name a COCO class without being its name.
+pub const SYNONYMS: &[(&str, &str)] = &[
+    // people
+    ("human", "person"), ("people", "person"), ("man", "person"), ("woman", "person"), ("men", "person"),
+    ("women", "person"), ("guy", "person"), ("lady", "person"), ("gentleman", "person"), ("boy", "person"),
+    ("girl", "person"), ("child", "person"), ("kid", "person"), ("visitor", "person"), ("pedestrian", "person"),
+    ("someone", "person"), ("somebody", "person"), ("worker", "person"), ("guest", "person"), ("me", "person"),
+    ("standing person", "person"), ("human statue", "person"), ("statue of a person", "person"),
+    ("mannequin", "person"), ("friend", "person"), ("colleague", "person"), ("user", "person"),
+    // vehicles
+    ("bike", "bicycle"), ("cycle", "bicycle"), ("motorbike", "motorcycle"), ("scooter", "motorcycle"),
+    ("automobile", "car"), ("vehicle", "car"), ("plane", "airplane"), ("aeroplane", "airplane"),
+    ("lorry", "truck"), ("ship", "boat"), ("traffic signal", "traffic light"), ("hydrant", "fire hydrant"),
+    // furniture and household
+    ("visitor chair", "chair"), ("office chair", "chair"), ("armchair", "chair"), ("stool", "chair"), ("seat", "chair"),
+    ("sofa", "couch"), ("settee", "couch"), ("loveseat", "couch"), ("table", "dining table"), ("desk", "dining table"),
+    ("plant", "potted plant"), ("houseplant", "potted plant"), ("flower pot", "potted plant"), ("pot plant", "potted plant"),
+    ("television", "tv"), ("tv set", "tv"), ("monitor", "tv"), ("screen", "tv"), ("telly", "tv"),
+    ("computer", "laptop"), ("notebook computer", "laptop"), ("fridge", "refrigerator"), ("phone", "cell phone"),
+    ("mobile", "cell phone"), ("mobile phone", "cell phone"), ("smartphone", "cell phone"), ("cellphone", "cell phone"),
+    ("remote control", "remote"), ("mug", "cup"), ("coffee cup", "cup"), ("glass", "wine glass"),
+    ("water bottle", "bottle"), ("teddy", "teddy bear"), ("ball", "sports ball"), ("football", "sports ball"),
+    ("soccer ball", "sports ball"), ("bag", "handbag"), ("purse", "handbag"), ("rucksack", "backpack"),
+    ("luggage", "suitcase"), ("hair dryer", "hair drier"), ("bathtub", "sink"), ("washbasin", "sink"),
+    ("microwave oven", "microwave"), ("stove", "oven"), ("timepiece", "clock"), ("doughnut", "donut"),
+    // animals
+    ("puppy", "dog"), ("doggy", "dog"), ("kitten", "cat"), ("kitty", "cat"), ("pony", "horse"), ("lamb", "sheep"),
+];
+
+/// Where a grounding came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Via {
+    /// The phrase (or its head noun) is a class name or in [`SYNONYMS`].
+    Lexical(String),
+    /// MiniLM similarity to the given class name or synonym.
+    Semantic { matched: String, score: f32 },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Grounding {
+    pub class_id: i32,
+    pub via: Via,
+}
+
+/// A phrase that could not be grounded, with the nearest classes to offer.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ungrounded {
+    pub phrase: String,
+    pub suggestions: Vec<String>,
+}
+
+struct Entry {
+    phrase: String,
+    class_id: i32,
+    embedding: Vec<f32>,
+}
+
+pub struct Grounder {
+    minilm: Option<MiniLm>,
+    entries: Vec<Entry>,
+    threshold: f32,
+}
+
+impl Grounder {
+    /// Lexical grounding with semantic similarity on top; embeds every class
+    /// name and synonym once.
+    pub fn with_minilm(minilm: MiniLm, threshold: f32) -> Result<Grounder, EmbedError> {
+        let mut entries = Vec::with_capacity(coco::CLASSES.len() + SYNONYMS.len());
+        let phrases = coco::CLASSES.iter().enumerate().map(|(i, c)| (c.to_string(), i as i32)).chain(
+            SYNONYMS
+                .iter()
+                .filter(|(s, _)| !matches!(*s, "me"))
+                .map(|(s, c)| (s.to_string(), coco::id(c).expect("synonyms map to COCO names"))),
+        );
+        for (phrase, class_id) in phrases {
+            let embedding = minilm.embed(&phrase)?;
+            entries.push(Entry { phrase, class_id, embedding });
+        }
+        Ok(Grounder { minilm: Some(minilm), entries, threshold })
+    }
+
+    /// Class names and the synonyms table only (no semantic stage).
+    pub fn lexical_only() -> Grounder {
+        Grounder { minilm: None, entries: Vec::new(), threshold: DEFAULT_THRESHOLD }
+    }
+
+    pub fn threshold(&self) -> f32 {
+        self.threshold
+    }
+
+    pub fn has_semantic(&self) -> bool {
+        self.minilm.is_some()
+    }
+
+    /// Grounds a target phrase ("visitor chair", "statue (human)", "sofa").
+    pub fn ground(&self, phrase: &str) -> Result<Grounding, Ungrounded> {
+        let phrase = phrase.trim().to_lowercase();
+        // "statue (elephant)": the parenthesis says what the thing depicts.
+        if let (Some(open), Some(close)) = (phrase.find('('), phrase.rfind(')'))
+            && open < close
+        {
+            let inner = phrase[open + 1..close].trim();
+            if let Some(g) = lexical(inner) {
+                return Ok(g);
+            }
+            let outer = format!("{} {}", phrase[..open].trim(), phrase[close + 1..].trim());
+            if let Some(g) = lexical(outer.trim()) {
+                return Ok(g);
+            }
+        }
+        if let Some(g) = lexical(&phrase) {
+            return Ok(g);
+        }
+        match self.semantic(&phrase) {
+            Some((best, score, _)) if score >= self.threshold => {
+                Ok(Grounding { class_id: best.class_id, via: Via::Semantic { matched: best.phrase.clone(), score } })
+            }
+            Some((_, _, suggestions)) => Err(Ungrounded { phrase, suggestions }),
+            None => Err(Ungrounded { phrase, suggestions: Vec::new() }),
+        }
+    }
+
+    /// The nearest entry, its score and the three nearest distinct class names.
+    fn semantic(&self, phrase: &str) -> Option<(&Entry, f32, Vec<String>)> {
+        let minilm = self.minilm.as_ref()?;
+        let q = minilm.embed(phrase).ok()?;
+        let mut scored: Vec<(f32, &Entry)> = self.entries.iter().map(|e| (cosine(&q, &e.embedding), e)).collect();
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let mut suggestions: Vec<String> = Vec::new();
+        for (_, e) in &scored {
+            let name = coco::CLASSES[e.class_id as usize].to_string();
+            if !suggestions.contains(&name) {
+                suggestions.push(name);
+            }
+            if suggestions.len() == 3 {
+                break;
+            }
+        }
+        let (score, best) = scored.first().copied()?;
+        Some((best, score, suggestions))
+    }
+
+    /// Similarity of `phrase` to its closest class name or synonym (for tuning).
+    pub fn best_score(&self, phrase: &str) -> Option<(String, f32)> {
+        self.semantic(&phrase.to_lowercase()).map(|(e, s, _)| (e.phrase.clone(), s))
+    }
+}
+
+/// Exact class name or synonym, for the phrase, its singular, its head noun
+/// (last word: "red chair" → chair) or any single word in it naming a class
+/// ("elephant statue" → elephant).
+pub fn lexical(phrase: &str) -> Option<Grounding> {
+    let exact = |p: &str| -> Option<Grounding> {
+        let name = coco::id(p).map(|_| p).or_else(|| SYNONYMS.iter().find(|(s, _)| *s == p).map(|(_, c)| *c))?;
+        Some(Grounding { class_id: coco::id(name)?, via: Via::Lexical(p.to_string()) })
+    };
+    let words: Vec<&str> = phrase.split_whitespace().collect();
+    if words.is_empty() {
+        return None;
+    }
+    let joined = words.join(" ");
+    exact(&joined)
+        .or_else(|| exact(&singular(&joined)))
+        // The last two words ("the red office chair" → "office chair"), then the head noun.
+        .or_else(|| (words.len() > 2).then(|| words[words.len() - 2..].join(" ")).and_then(|p| exact(&p).or_else(|| exact(&singular(&p)))))
+        .or_else(|| exact(words[words.len() - 1]).or_else(|| exact(&singular(words[words.len() - 1]))))
+        .or_else(|| words.iter().rev().find_map(|w| exact(w).or_else(|| exact(&singular(w)))))
+}
+
+fn singular(w: &str) -> String {
+    if let Some(stem) = w.strip_suffix("ies") {
+        format!("{stem}y")
+    } else if w.ends_with("ches") || w.ends_with("shes") || w.ends_with("sses") || w.ends_with("xes") {
+        w[..w.len() - 2].to_string()
+    } else if let Some(stem) = w.strip_suffix('s')
+        && !w.ends_with("ss")
+    {
+        stem.to_string()
+    } else {
+        w.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn id(p: &str) -> Option<i32> {
+        Grounder::lexical_only().ground(p).ok().map(|g| g.class_id)
+    }
+
+    #[test]
+    fn grounds_names_synonyms_heads_and_parentheses() {
+        assert_eq!(id("chair"), Some(56));
+        assert_eq!(id("visitor chair"), Some(56));
+        assert_eq!(id("the red chairs"), Some(56));
+        assert_eq!(id("sofa"), Some(57));
+        assert_eq!(id("water bottle"), Some(39));
+        assert_eq!(id("TV"), Some(62));
+        assert_eq!(id("elephant statue"), Some(20));
+        assert_eq!(id("statue (human)"), Some(0));
+        assert_eq!(id("statue (Elephant)"), Some(20));
+        assert_eq!(id("standing person"), Some(0));
+        assert_eq!(id("benches"), Some(13));
+        assert_eq!(id("potted plants"), Some(58));
+    }
+
+    #[test]
+    fn leaves_unknown_phrases_ungrounded_without_the_semantic_stage() {
+        assert_eq!(id("pharmacy"), None);
+        assert_eq!(id("statue"), None);
+        assert_eq!(id(""), None);
+    }
+
+    #[test]
+    fn every_synonym_maps_to_a_coco_class() {
+        for (s, c) in SYNONYMS {
+            assert!(coco::id(c).is_some(), "{s} → {c}");
+        }
+    }
+}

@@ -1,0 +1,208 @@
+//! RGB-D camera geometry shared by the subgoal estimator and the local
+//! planner: pinhole back-projection, the fixed optical → body rotation and the
+//! camera's mounting pose in `base_link`.
+//!
+//! Conventions. Image coordinates are the pinhole's: pixel `(u, v)` of the
+//! depth image is the sample at `(u, v)`, the same system the intrinsics
+//! `c_x, c_y` are given in. The optical frame has z forward, x right, y down;
+//! the camera body frame (REP-103) has x forward, y left, z up, so
+//! `body = (z_opt, −x_opt, −y_opt)`. The mount is the body frame's pose in
+//! `base_link`: translation plus roll/pitch/yaw applied as
+//! `R = Rz(yaw)·Ry(pitch)·Rx(roll)` (the ROS fixed-axis RPY convention).
+
+use nalgebra::{Rotation3, Vector3};
+
+/// Pinhole intrinsics, pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Intrinsics {
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+}
+
+impl Intrinsics {
+    /// The point in the optical frame seen at pixel `(u, v)` at depth `z` (m).
+    pub fn back_project(&self, u: f64, v: f64, z: f64) -> Vector3<f64> {
+        Vector3::new((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z)
+    }
+}
+
+/// Pose of the camera body frame in `base_link`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Mount {
+    pub translation: Vector3<f64>,
+    pub roll: f64,
+    pub pitch: f64,
+    pub yaw: f64,
+}
+
+impl Default for Mount {
+    fn default() -> Self {
+        Self { translation: Vector3::zeros(), roll: 0.0, pitch: 0.0, yaw: 0.0 }
+    }
+}
+
+impl Mount {
+    /// Rotation of the body frame in `base_link`, `Rz(yaw)·Ry(pitch)·Rx(roll)`.
+    pub fn rotation(&self) -> Rotation3<f64> {
+        Rotation3::from_euler_angles(self.roll, self.pitch, self.yaw)
+    }
+
+    /// The transform optical frame → `base_link`, ready for many points.
+    pub fn optical_to_base(&self) -> OpticalToBase {
+        let r = self.rotation();
+        // Columns: where the optical x, y, z axes point in base_link.
+        let m = r.matrix();
+        let ex = -m.column(1).into_owned(); // optical x = body −y
+        let ey = -m.column(2).into_owned(); // optical y = body −z
+        let ez = m.column(0).into_owned(); // optical z = body x
+        OpticalToBase { ex, ey, ez, t: self.translation }
+    }
+}
+
+/// Optical frame → `base_link` as three axis vectors and a translation.
+#[derive(Clone, Copy, Debug)]
+pub struct OpticalToBase {
+    ex: Vector3<f64>,
+    ey: Vector3<f64>,
+    ez: Vector3<f64>,
+    t: Vector3<f64>,
+}
+
+impl OpticalToBase {
+    pub fn apply(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.t + self.ex * p.x + self.ey * p.y + self.ez * p.z
+    }
+}
+
+/// Everything needed to interpret one depth frame on its own.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub width: u32,
+    pub height: u32,
+    pub intrinsics: Intrinsics,
+    pub mount: Mount,
+    /// Readings outside `(depth_min_m, depth_max_m)` are invalid.
+    pub depth_min_m: f64,
+    pub depth_max_m: f64,
+}
+
+impl Camera {
+    /// The `base_link` point seen at pixel `(u, v)` at depth `z`.
+    pub fn pixel_to_base(&self, u: f64, v: f64, z: f64) -> Vector3<f64> {
+        self.mount.optical_to_base().apply(&self.intrinsics.back_project(u, v, z))
+    }
+
+    pub fn depth_is_valid(&self, z_m: f64) -> bool {
+        z_m > self.depth_min_m && z_m < self.depth_max_m
+    }
+}
+
+/// A borrowed depth image: little-endian u16 millimetres, row-major, 0 = no return.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthView<'a> {
+    width: usize,
+    height: usize,
+    data: &'a [u8],
+}
+
+/// The depth buffer does not hold `width × height` u16 samples.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("depth image is {width}x{height} so data_mm must hold {expected} bytes (little-endian u16 mm), got {actual}")]
+pub struct DepthSizeError {
+    pub width: u32,
+    pub height: u32,
+    pub expected: usize,
+    pub actual: usize,
+}
+
+impl<'a> DepthView<'a> {
+    pub fn new(width: u32, height: u32, data: &'a [u8]) -> Result<Self, DepthSizeError> {
+        let expected = width as usize * height as usize * 2;
+        if data.len() != expected || expected == 0 {
+            return Err(DepthSizeError { width, height, expected, actual: data.len() });
+        }
+        Ok(Self { width: width as usize, height: height as usize, data })
+    }
+
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    /// Raw reading at `(u, v)`, millimetres (0 = no return).
+    #[inline]
+    pub fn mm(&self, u: usize, v: usize) -> u16 {
+        let i = 2 * (v * self.width + u);
+        u16::from_le_bytes([self.data[i], self.data[i + 1]])
+    }
+}
+
+/// Encodes depth in metres as the wire format (little-endian u16 mm; values
+/// that do not fit, NaN or ≤ 0 become 0 = no return). Used by tests and tools.
+pub fn encode_depth_mm(depth_m: &[f64]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(depth_m.len() * 2);
+    for &d in depth_m {
+        let mm = if d.is_finite() && d > 0.0 { (d * 1000.0).round().min(u16::MAX as f64) as u16 } else { 0 };
+        out.extend_from_slice(&mm.to_le_bytes());
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::FRAC_PI_2;
+
+    fn close(a: &Vector3<f64>, b: [f64; 3]) {
+        assert!((a - Vector3::from(b)).norm() < 1e-9, "{a:?} != {b:?}");
+    }
+
+    #[test]
+    fn back_projection_follows_the_pinhole_formula() {
+        let k = Intrinsics { fx: 400.0, fy: 500.0, cx: 320.0, cy: 240.0 };
+        // X = (u − cx)Z/fx, Y = (v − cy)Z/fy.
+        close(&k.back_project(420.0, 140.0, 2.0), [0.5, -0.4, 2.0]);
+        close(&k.back_project(320.0, 240.0, 3.0), [0.0, 0.0, 3.0]);
+    }
+
+    #[test]
+    fn a_level_forward_camera_maps_optical_to_rep103() {
+        let m = Mount { translation: Vector3::new(0.3, 0.0, 0.5), ..Mount::default() };
+        let t = m.optical_to_base();
+        // Optical z (forward) → base x; optical x (right) → base −y; optical y (down) → base −z.
+        close(&t.apply(&Vector3::new(0.0, 0.0, 2.0)), [2.3, 0.0, 0.5]);
+        close(&t.apply(&Vector3::new(1.0, 0.0, 0.0)), [0.3, -1.0, 0.5]);
+        close(&t.apply(&Vector3::new(0.0, 1.0, 0.0)), [0.3, 0.0, -0.5]);
+    }
+
+    #[test]
+    fn mount_yaw_and_pitch_rotate_the_view() {
+        // Camera turned 90° left: looking along base +y.
+        let m = Mount { yaw: FRAC_PI_2, ..Mount::default() };
+        close(&m.optical_to_base().apply(&Vector3::new(0.0, 0.0, 2.0)), [0.0, 2.0, 0.0]);
+        // Optical x (right of the image) now points along base +x.
+        close(&m.optical_to_base().apply(&Vector3::new(1.0, 0.0, 0.0)), [1.0, 0.0, 0.0]);
+        // Pitched down 30° (positive pitch about y tips x toward −z).
+        let p = 30f64.to_radians();
+        let m = Mount { pitch: p, ..Mount::default() };
+        close(&m.optical_to_base().apply(&Vector3::new(0.0, 0.0, 1.0)), [p.cos(), 0.0, -p.sin()]);
+        // Rolled 90° about x: optical x (right) → body −y → base −z.
+        let m = Mount { roll: FRAC_PI_2, ..Mount::default() };
+        close(&m.optical_to_base().apply(&Vector3::new(1.0, 0.0, 0.0)), [0.0, 0.0, -1.0]);
+    }
+
+    #[test]
+    fn depth_view_reads_little_endian_mm_and_checks_size() {
+        let bytes = encode_depth_mm(&[1.0, 0.0, 2.5, 70.0]);
+        let d = DepthView::new(2, 2, &bytes).unwrap();
+        assert_eq!((d.mm(0, 0), d.mm(1, 0), d.mm(0, 1), d.mm(1, 1)), (1000, 0, 2500, 65535));
+        let err = DepthView::new(3, 2, &bytes).unwrap_err();
+        assert_eq!(err.expected, 12);
+        assert!(err.to_string().contains("must hold 12 bytes"));
+    }
+}
