@@ -524,21 +524,18 @@ impl MissionRun {
                 self.mission_id
             )));
         };
-        let resp = ctx
-            .pipeline
-            .planner
-            .clone()
-            .replan(ReplanRequest {
-                instruction: self.instruction.clone(),
-                plan: Some(vlnav_proto::v1::ActionPlan { steps: self.plan.clone() }),
-                failed_step: self.index as u32,
-                failure,
-                answer: answer.to_string(),
-                backend: String::new(),
-            })
-            .instrument(self.span.clone())
-            .await?
-            .into_inner();
+        // A question asked before anything ran: the answer is the instruction now.
+        let resp = if self.plan.is_empty() {
+            ctx.pipeline
+                .planner
+                .clone()
+                .plan(vlnav_proto::v1::PlanRequest { instruction: answer.to_string(), backend: String::new() })
+                .instrument(self.span.clone())
+                .await?
+                .into_inner()
+        } else {
+            self.replan(ctx, answer, failure).await?
+        };
         let stamp = self.metrics.last_stamp;
         match resp.outcome {
             Some(plan_response::Outcome::Plan(p)) => {
@@ -557,7 +554,10 @@ impl MissionRun {
                     Kind::Replanned(Replanned { plan: Some(full), plan_json: plan_json.clone(), answer: answer.to_string(), resume_index: resume }),
                     move |m| {
                         m.plan = Some(full2);
-                        m.plan_json = plan_json;
+                        // The planner's JSON covers the revised steps (from resume_index on).
+                        if resume == 0 {
+                            m.plan_json = plan_json;
+                        }
                         m.state = MissionState::Running as i32;
                         m.clarification = None;
                     },
@@ -580,6 +580,24 @@ impl MissionRun {
             }
             None => Err(tonic::Status::internal("the planner returned neither a plan nor a question")),
         }
+    }
+
+    async fn replan(&self, ctx: &Ctx<'_>, answer: &str, failure: String) -> Result<vlnav_proto::v1::PlanResponse, tonic::Status> {
+        Ok(ctx
+            .pipeline
+            .planner
+            .clone()
+            .replan(ReplanRequest {
+                instruction: self.instruction.clone(),
+                plan: Some(vlnav_proto::v1::ActionPlan { steps: self.plan.clone() }),
+                failed_step: self.index as u32,
+                failure,
+                answer: answer.to_string(),
+                backend: String::new(),
+            })
+            .instrument(self.span.clone())
+            .await?
+            .into_inner())
     }
 
     async fn segment(&self, ctx: &Ctx<'_>, frame: &RgbdFrame) -> Result<Vec<Point3>, StageError> {
