@@ -22,7 +22,7 @@ pub const SYNONYMS: &[(&str, &str)] = &[
     ("women", "person"), ("guy", "person"), ("lady", "person"), ("gentleman", "person"), ("boy", "person"),
     ("girl", "person"), ("child", "person"), ("kid", "person"), ("visitor", "person"), ("pedestrian", "person"),
     ("someone", "person"), ("somebody", "person"), ("worker", "person"), ("guest", "person"), ("me", "person"),
-    ("standing person", "person"), ("human statue", "person"), ("statue of a person", "person"),
+    ("standing person", "person"),
     ("mannequin", "person"), ("friend", "person"), ("colleague", "person"), ("user", "person"),
     // vehicles
     ("bike", "bicycle"), ("cycle", "bicycle"), ("motorbike", "motorcycle"), ("scooter", "motorcycle"),

@@ -452,6 +452,7 @@ const PHRASE_END: &[&str] = &[
     "beside", "behind", "before", "after", "in", "into", "when", "while", "if", "follow", "it", "there", "please",
     "is", "are", "was", "standing", "stands", "sitting", "sits", "lies", "lying", "located", "placed", "kept",
 ];
+const PARTICIPLES: &[&str] = &["standing", "sitting", "lying", "placed", "kept", "located"];
 const DETERMINERS: &[&str] = &["the", "a", "an", "some", "this", "that", "my", "your", "our", "his", "her", "their", "any", "one", "its"];
 
 /// The target phrase starting at `start`: determiners dropped, cut at the
@@ -479,7 +480,8 @@ fn phrase_from(t: &[Token], start: usize) -> (String, bool) {
         if !is_paren && (PHRASE_END.contains(&w) || matches!(w, "," | "." | ";" | "!" | "?" | ":")) && !out.is_empty() {
             break;
         }
-        if !is_paren && PHRASE_END.contains(&w) {
+        // Participles open a phrase as adjectives ("the standing person").
+        if !is_paren && PHRASE_END.contains(&w) && !PARTICIPLES.contains(&w) {
             break;
         }
         out.push(&t[i]);
