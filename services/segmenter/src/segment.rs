@@ -172,6 +172,9 @@ pub fn segment(
         let i = known.iter().position(|k| k == c).ok_or_else(|| {
             SegmentError::InvalidInput(format!("classes[{j}]: {c:?} is not known to the {} backend (known: {})", backend.name(), known.join(", ")))
         })?;
+        if to_response[i] != 0 {
+            return Err(SegmentError::InvalidInput(format!("classes[{j}]: {c:?} is listed twice")));
+        }
         to_response[i] = j as u8 + 1;
     }
     let wanted: Vec<bool> = to_response.iter().map(|&r| r != 0).collect();
@@ -212,4 +215,68 @@ pub fn segment(
         }
     }
     Ok(Segmentation { classes, mask, class_pixels, points })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::colour::default_classes;
+    use crate::geometry::{Intrinsics, Mount};
+
+    /// A camera 1 m above the floor looking straight down (pitch +90°): every
+    /// pixel sees the floor at 1 m, image up (−v) is base_link +x.
+    fn downward(w: u32, h: u32) -> Camera {
+        Camera {
+            width: w,
+            height: h,
+            intrinsics: Intrinsics { fx: 2.0, fy: 2.0, cx: (w as f64 - 1.0) / 2.0, cy: (h as f64 - 1.0) / 2.0 },
+            mount: Mount { translation: [0.0, 0.0, 1.0], roll: 0.0, pitch: std::f64::consts::FRAC_PI_2, yaw: 0.0 },
+            depth_min_m: 0.0,
+            depth_max_m: 0.0,
+        }
+    }
+
+    #[test]
+    fn floor_pixels_become_stacked_points_and_unverifiable_ones_are_dropped() {
+        let cam = downward(3, 3);
+        let red = [220u8, 20, 20];
+        let grey = [128u8, 128, 128];
+        // Red everywhere but the centre; the top-left reading is missing and
+        // the top-right one is a box top 0.6 m above the floor.
+        let rgb: Vec<u8> = (0..9).flat_map(|i| if i == 4 { grey } else { red }).collect();
+        let mut depth = vec![1000u16; 9];
+        depth[0] = 0;
+        depth[2] = 400;
+        let frame = FrameView { camera: cam, rgb: &rgb, depth_mm: &depth, semantics: None };
+        let backend = ColourBackend::new(default_classes());
+        let seg = segment(&backend, &frame, None, 1, &PointSettings::default()).unwrap();
+        assert_eq!(seg.mask, vec![0, 1, 0, 1, 0, 1, 1, 1, 1]);
+        assert_eq!(seg.class_pixels, vec![6, 0, 0]);
+        assert_eq!(seg.points.len(), 6 * 3);
+        // Pixel (1, 0) — top middle — lies 0.5 m ahead (fx = 2, 1 px at 1 m).
+        let ahead: Vec<_> = seg.points.iter().filter(|p| p[0] > 0.4).collect();
+        assert_eq!(ahead.len(), 3);
+        for (p, z) in ahead.iter().zip([0.0, 0.25, 0.5]) {
+            assert!((p[0] - 0.5).abs() < 1e-9 && p[1].abs() < 1e-9 && (p[2] - z).abs() < 1e-12, "{p:?}");
+        }
+        // A stride of 2 keeps pixels (0,0), (2,0), (0,2), (2,2): only the bottom two qualify.
+        let sparse = segment(&backend, &frame, None, 2, &PointSettings::default()).unwrap();
+        assert_eq!(sparse.points.len(), 2 * 3);
+        assert_eq!(sparse.mask, seg.mask, "the stride thins points, not the mask");
+    }
+
+    #[test]
+    fn requested_classes_are_checked_and_reordered() {
+        let cam = downward(1, 1);
+        let frame = FrameView { camera: cam, rgb: &[240, 210, 20], depth_mm: &[1000], semantics: None };
+        let backend = ColourBackend::new(default_classes());
+        let wanted = ["cable".to_string(), "hazard".to_string()];
+        let seg = segment(&backend, &frame, Some(&wanted), 1, &PointSettings::default()).unwrap();
+        assert_eq!((seg.classes.as_slice(), seg.mask.as_slice(), seg.class_pixels.as_slice()), (&wanted[..], &[2u8][..], &[0, 1][..]));
+        let twice = ["hazard".to_string(), "hazard".to_string()];
+        assert!(segment(&backend, &frame, Some(&twice), 1, &PointSettings::default()).is_err());
+        let unknown = ["lava".to_string()];
+        let err = segment(&backend, &frame, Some(&unknown), 1, &PointSettings::default()).unwrap_err();
+        assert!(err.to_string().contains("lava"), "{err}");
+    }
 }
