@@ -65,6 +65,14 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
                 Encoding::Png => (image::ImageFormat::Png, "PNG"),
                 _ => (image::ImageFormat::Jpeg, "JPEG"),
             };
+            // The JPEG decoder fills a cut-off scan with grey instead of failing; a truncated
+            // upload must not be mistaken for a picture, so the end-of-image marker is required.
+            if encoding == Encoding::Jpeg && !jpeg_is_complete(data) {
+                return Err(ImageError::Decode {
+                    format: name,
+                    reason: format!("the data ({} bytes) ends without the end-of-image marker FF D9", data.len()),
+                });
+            }
             let mut reader = image::ImageReader::with_format(std::io::Cursor::new(data), format);
             let mut limits = image::Limits::default();
             limits.max_image_width = Some(MAX_SIDE);
@@ -78,6 +86,12 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
             Ok(img.into_rgb8())
         }
     }
+}
+
+/// A JPEG stream ends with the EOI marker (FF D9); zero padding after it is tolerated.
+fn jpeg_is_complete(data: &[u8]) -> bool {
+    let end = data.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+    end >= 4 && data[..2] == [0xFF, 0xD8] && data[end - 2..end] == [0xFF, 0xD9]
 }
 
 /// How a network wants its input.
@@ -151,6 +165,14 @@ mod tests {
         assert!(matches!(e, ImageError::SizeMismatch { decoded_w: 5, .. }), "{e}");
         let e = decode(Encoding::Jpeg, 5, 3, &png).unwrap_err();
         assert!(matches!(e, ImageError::Decode { format: "JPEG", .. }), "{e}");
+        // A JPEG cut short is refused, a complete one (with zero padding) decodes.
+        let mut jpeg = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut jpeg), image::ImageFormat::Jpeg).unwrap();
+        assert_eq!(decode(Encoding::Jpeg, 5, 3, &jpeg).unwrap().dimensions(), (5, 3));
+        let e = decode(Encoding::Jpeg, 5, 3, &jpeg[..jpeg.len() - 10]).unwrap_err();
+        assert!(e.to_string().contains("end-of-image"), "{e}");
+        jpeg.extend_from_slice(&[0, 0, 0]);
+        assert!(decode(Encoding::Jpeg, 5, 3, &jpeg).is_ok());
     }
 
     #[test]

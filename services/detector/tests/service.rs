@@ -161,7 +161,7 @@ async fn bad_images_get_invalid_argument_with_a_clear_message() {
     expect(request(rgb_frame(odd), vec![], 0.0), "decodes to 800×556").await;
     // Raw RGB8 of the wrong length; RGBA sent as RGB8.
     let short = image(v1::ImageEncoding::Rgb8, 10, 10, vec![0; 299]);
-    expect(request(rgb_frame(short), vec![], 0.0), "expected").await;
+    expect(request(rgb_frame(short), vec![], 0.0), "299 bytes, but 10×10×3 = 300").await;
     let rgba = image(v1::ImageEncoding::Rgb8, 10, 10, vec![0; 400]);
     expect(request(rgb_frame(rgba), vec![], 0.0), "4-channel").await;
     let no_width = image(v1::ImageEncoding::Rgb8, 0, 10, vec![0; 30]);
