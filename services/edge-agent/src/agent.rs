@@ -1,0 +1,420 @@
+//! The link to the gateway and the `sim` driver's session loops.
+//!
+//! Lockstep: render frame k, send it, wait for the one command that answers
+//! it, apply that (through the governor) for one frame period, advance —
+//! deterministic and as fast as the gateway answers. A wall-clock liveness
+//! timeout only notices a dead gateway. When the gateway says `idle`, frames
+//! are paced at real time so an idle robot does not spin the CPU.
+//!
+//! Real time: a wall-clock timer steps the world one frame period at a time;
+//! commands are applied as they arrive, and the deadman stops the robot when
+//! they stop.
+
+use std::time::Duration;
+
+use anyhow::Context;
+use tokio::sync::mpsc;
+use tokio::time::Instant;
+use tonic::Streaming;
+use vlnav_proto::v1 as pb;
+use vlnav_proto::v1::fleet_service_client::FleetServiceClient;
+use vlnav_runtime::CancellationToken;
+use vlnav_sim::{Simulator, load_scenario};
+
+use crate::convert::{self, FrameMeta, RobotDescription};
+use crate::safety::{Backoff, Governor, Limits, Twist, Verdict};
+use crate::{EdgeOptions, Hooks, StepRecord};
+
+/// Why a session ended.
+#[derive(Debug)]
+pub enum SessionEnd {
+    /// Shutdown requested or the episode's time is up.
+    Finished,
+    /// The link failed; reconnect.
+    Lost(String),
+}
+
+/// One attached stream to the gateway.
+pub struct Link {
+    tx: mpsc::Sender<pb::EdgeMessage>,
+    rx: Streaming<pb::GatewayCommand>,
+    last_heard: Instant,
+}
+
+impl Link {
+    /// Attaches to the gateway and sends `hello` first.
+    pub async fn connect(opts: &EdgeOptions, hello: pb::EdgeHello) -> anyhow::Result<Link> {
+        let channel = vlnav_runtime::client::channel(&opts.gateway).with_context(|| format!("bad --gateway uri {}", opts.gateway))?;
+        let mut client = FleetServiceClient::new(channel)
+            .max_decoding_message_size(opts.max_message_bytes)
+            .max_encoding_message_size(opts.max_message_bytes);
+        let (tx, rx) = mpsc::channel(4);
+        tx.send(convert::edge(pb::edge_message::Kind::Hello(hello))).await.expect("receiver is alive");
+        let attach = client.attach(tokio_stream::wrappers::ReceiverStream::new(rx));
+        let response = tokio::time::timeout(Duration::from_secs_f64(opts.liveness_timeout_s), attach)
+            .await
+            .map_err(|_| anyhow::anyhow!("gateway {} did not answer Attach within {} s", opts.gateway, opts.liveness_timeout_s))?
+            .with_context(|| format!("attaching to the gateway at {}", opts.gateway))?;
+        Ok(Link { tx, rx: response.into_inner(), last_heard: Instant::now() })
+    }
+
+    /// Sends and waits for room (lockstep).
+    pub async fn send(&self, msg: pb::EdgeMessage) -> Result<(), String> {
+        self.tx.send(msg).await.map_err(|_| "the gateway closed the stream".to_string())
+    }
+
+    /// Sends if there is room; a full queue drops the message (real time
+    /// prefers a fresh frame to a late one). Errors only on a closed stream.
+    pub fn offer(&self, msg: pb::EdgeMessage) -> Result<bool, String> {
+        match self.tx.try_send(msg) {
+            Ok(()) => Ok(true),
+            Err(mpsc::error::TrySendError::Full(_)) => Ok(false),
+            Err(mpsc::error::TrySendError::Closed(_)) => Err("the gateway closed the stream".into()),
+        }
+    }
+
+    /// The next command from the gateway.
+    pub async fn recv(&mut self) -> Result<pb::GatewayCommand, String> {
+        match self.rx.message().await {
+            Ok(Some(m)) => {
+                self.last_heard = Instant::now();
+                Ok(m)
+            }
+            Ok(None) => Err("the gateway ended the stream".into()),
+            Err(status) => Err(format!("stream failed: {} ({:?})", status.message(), status.code())),
+        }
+    }
+
+    pub fn last_heard(&self) -> Instant {
+        self.last_heard
+    }
+}
+
+/// Reports e-stop and deadman changes to the gateway, once per change.
+#[derive(Default)]
+pub struct StatusReporter {
+    last: Option<(bool, bool)>,
+}
+
+impl StatusReporter {
+    pub fn update(&mut self, stamp: f64, verdict: Verdict) -> Option<pb::EdgeMessage> {
+        let estop = verdict == Verdict::EStop;
+        let tripped = verdict.deadman_tripped();
+        if self.last == Some((estop, tripped)) {
+            return None;
+        }
+        self.last = Some((estop, tripped));
+        let detail = match verdict {
+            Verdict::EStop => "e-stop engaged: holding zero velocity",
+            Verdict::DeadmanTripped => "deadman: no fresh command, holding zero velocity",
+            Verdict::NoCommand => "waiting for the first command, holding zero velocity",
+            Verdict::Commanded { .. } => "following commands",
+        };
+        Some(convert::edge(pb::edge_message::Kind::Status(pb::EdgeStatus {
+            stamp,
+            estop,
+            deadman_tripped: tripped,
+            detail: detail.into(),
+        })))
+    }
+
+    pub fn reset(&mut self) {
+        self.last = None;
+    }
+}
+
+pub(crate) fn twist_of(v: &pb::VelocityCommand) -> Twist {
+    v.twist.map(|t| Twist::new(t.linear, t.angular)).unwrap_or(Twist::ZERO)
+}
+
+pub(crate) fn limits_of(p: &vlnav_sim::HuskyParams) -> Limits {
+    Limits {
+        max_linear: p.max_linear,
+        max_angular: p.max_angular,
+        max_linear_accel: p.max_linear_accel,
+        max_angular_accel: p.max_angular_accel,
+    }
+}
+
+/// Installs SIGUSR1 (engage) / SIGUSR2 (release) as e-stop buttons.
+pub fn spawn_estop_signals(estop: crate::EstopSwitch, shutdown: CancellationToken) {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        let (Ok(mut engage), Ok(mut release)) = (signal(SignalKind::user_defined1()), signal(SignalKind::user_defined2())) else {
+            tracing::warn!("cannot install SIGUSR1/SIGUSR2 e-stop handlers");
+            return;
+        };
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = shutdown.cancelled() => return,
+                    Some(()) = engage.recv() => { tracing::warn!("e-stop engaged (SIGUSR1)"); estop.engage(); }
+                    Some(()) = release.recv() => { tracing::warn!("e-stop released (SIGUSR2)"); estop.release(); }
+                }
+            }
+        });
+    }
+}
+
+struct SimRobot {
+    sim: Simulator,
+    frame: vlnav_sim::Frame,
+    camera: pb::CameraInfo,
+    period: f64,
+    seq: u64,
+    robot_id: String,
+    max_time: Option<f64>,
+}
+
+impl SimRobot {
+    fn capture(&mut self) -> (pb::SensorFrame, pb::OdometryUpdate, vlnav_sim::Truth, vlnav_sim::Odometry) {
+        self.sim.render_into(&mut self.frame);
+        let truth = self.sim.truth();
+        let odom = self.sim.odometry();
+        let stamp = self.sim.time();
+        let wheel = Twist::new(odom.twist.linear, odom.twist.angular);
+        let meta = FrameMeta {
+            robot_id: &self.robot_id,
+            seq: self.seq,
+            stamp,
+            camera: self.camera.clone(),
+            odom: odom.pose,
+            odom_twist: wheel,
+        };
+        let frame = pb::SensorFrame { frame: Some(convert::sim_frame(meta, &self.frame)), truth: Some(convert::sim_truth(&truth)) };
+        let odo = pb::OdometryUpdate { stamp, pose: Some(convert::pose(&odom.pose)), twist: Some(convert::twist(&wheel)) };
+        self.seq += 1;
+        (frame, odo, truth, odom)
+    }
+
+    fn time_is_up(&self) -> bool {
+        self.max_time.is_some_and(|m| self.sim.time() >= m - 1e-9)
+    }
+
+    fn step(&mut self, cmd: Twist) {
+        self.sim.step(vlnav_sim::Twist::new(cmd.linear, cmd.angular), self.period);
+    }
+}
+
+/// Runs the `sim` driver: reconnects with backoff, holding the robot stopped.
+pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hooks) -> anyhow::Result<()> {
+    let world = load_scenario(&opts.scenario).map_err(|e| anyhow::anyhow!("scenario `{}`: {e}", opts.scenario))?;
+    let mut sim = Simulator::new(world, opts.seed);
+    if opts.width.is_some() || opts.height.is_some() {
+        let cam = sim.camera().clone();
+        let (w, h) = (opts.width.unwrap_or(cam.width), opts.height.unwrap_or(cam.height));
+        sim.set_camera(cam.with_resolution(w, h).map_err(|e| anyhow::anyhow!("--width/--height: {e}"))?);
+    }
+    let params = *sim.params();
+    let desc = RobotDescription { limits: limits_of(&params), footprint_length: params.length, footprint_width: params.width };
+    let camera = convert::sim_camera_info(sim.camera());
+    let hello = pb::EdgeHello {
+        robot_id: opts.robot_id.clone(),
+        driver: "sim".into(),
+        limits: Some(convert::limits(&desc)),
+        camera: Some(camera.clone()),
+        lockstep: opts.lockstep,
+    };
+    let mut robot = SimRobot {
+        sim,
+        frame: Default::default(),
+        camera,
+        period: 1.0 / opts.frame_rate,
+        seq: 0,
+        robot_id: opts.robot_id.clone(),
+        max_time: opts.max_sim_time_s,
+    };
+    let mut gov = Governor::new(desc.limits, opts.deadman_timeout_s);
+    let mut backoff = Backoff::new(Duration::from_secs_f64(opts.reconnect_initial_s), Duration::from_secs_f64(opts.reconnect_max_s));
+    let mut status = StatusReporter::default();
+    tracing::info!(robot = %opts.robot_id, scenario = %opts.scenario, lockstep = opts.lockstep, gateway = %opts.gateway, "sim edge agent starting");
+    loop {
+        if shutdown.is_cancelled() || robot.time_is_up() {
+            return Ok(());
+        }
+        let connected = tokio::select! {
+            _ = shutdown.cancelled() => return Ok(()),
+            r = Link::connect(opts, hello.clone()) => r,
+        };
+        let end = match connected {
+            Ok(mut link) => {
+                backoff.reset();
+                status.reset();
+                tracing::info!(robot = %opts.robot_id, "attached to the gateway");
+                if opts.lockstep {
+                    lockstep_session(opts, &mut robot, &mut gov, &mut link, &mut status, &hooks, &shutdown).await
+                } else {
+                    realtime_session(opts, &mut robot, &mut gov, &mut link, &mut status, &hooks, &shutdown).await
+                }
+            }
+            Err(e) => SessionEnd::Lost(format!("{e:#}")),
+        };
+        match end {
+            SessionEnd::Finished => return Ok(()),
+            SessionEnd::Lost(reason) => {
+                gov.drop_command();
+                let delay = backoff.next_delay();
+                tracing::warn!(robot = %opts.robot_id, %reason, retry_in_s = delay.as_secs_f64(), "gateway link down; robot held stopped");
+                if hold_stopped(opts, &mut robot, &mut gov, &hooks, delay, &shutdown).await {
+                    return Ok(());
+                }
+            }
+        }
+    }
+}
+
+/// Waits `delay` with the robot stopped. In real time the world keeps
+/// moving (pedestrians walk, the robot brakes); in lockstep it is frozen.
+/// Returns true when the run should end.
+async fn hold_stopped(opts: &EdgeOptions, robot: &mut SimRobot, gov: &mut Governor, hooks: &Hooks, delay: Duration, shutdown: &CancellationToken) -> bool {
+    let until = Instant::now() + delay;
+    if opts.lockstep {
+        tokio::select! {
+            _ = shutdown.cancelled() => return true,
+            _ = tokio::time::sleep_until(until) => return false,
+        }
+    }
+    let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
+    loop {
+        tokio::select! {
+            _ = shutdown.cancelled() => return true,
+            _ = tokio::time::sleep_until(until) => return false,
+            _ = tick.tick() => {
+                gov.set_estop(hooks.estop.is_engaged());
+                let (out, verdict) = gov.output(robot.sim.time());
+                robot.step(out);
+                observe(hooks, robot, out, verdict, gov, false, String::new());
+                if robot.time_is_up() { return true; }
+            }
+        }
+    }
+}
+
+fn observe(hooks: &Hooks, robot: &SimRobot, applied: Twist, verdict: Verdict, gov: &Governor, idle: bool, mission_id: String) {
+    if let Some(obs) = &hooks.observer {
+        let _ = obs.send(StepRecord {
+            seq: robot.seq.saturating_sub(1),
+            stamp: robot.sim.time(),
+            odom: robot.sim.odometry().pose,
+            truth: Some(robot.sim.truth()),
+            command: gov.command(),
+            applied,
+            verdict,
+            idle,
+            mission_id,
+        });
+    }
+}
+
+async fn lockstep_session(
+    opts: &EdgeOptions,
+    robot: &mut SimRobot,
+    gov: &mut Governor,
+    link: &mut Link,
+    status: &mut StatusReporter,
+    hooks: &Hooks,
+    shutdown: &CancellationToken,
+) -> SessionEnd {
+    let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
+    loop {
+        if shutdown.is_cancelled() || robot.time_is_up() {
+            return SessionEnd::Finished;
+        }
+        let (frame, odo, _, _) = robot.capture();
+        let stamp = robot.sim.time();
+        for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
+            tokio::select! {
+                _ = shutdown.cancelled() => return SessionEnd::Finished,
+                r = link.send(msg) => if let Err(e) = r { return SessionEnd::Lost(e) },
+            }
+        }
+        // The one command that answers this frame.
+        let deadline = Instant::now() + liveness;
+        let answer = loop {
+            let msg = tokio::select! {
+                _ = shutdown.cancelled() => return SessionEnd::Finished,
+                _ = tokio::time::sleep_until(deadline) => {
+                    return SessionEnd::Lost(format!("no command for the frame stamped {stamp:.3} s within {} s", opts.liveness_timeout_s));
+                }
+                m = link.recv() => m,
+            };
+            match msg {
+                Err(e) => return SessionEnd::Lost(e),
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => break v,
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
+                Ok(_) => {}
+            }
+        };
+        gov.on_command(answer.stamp, twist_of(&answer));
+        gov.set_estop(hooks.estop.is_engaged());
+        let (out, verdict) = gov.output(stamp);
+        if let Some(s) = status.update(stamp, verdict) {
+            if let Err(e) = link.send(s).await {
+                return SessionEnd::Lost(e);
+            }
+        }
+        observe(hooks, robot, out, verdict, gov, answer.idle, answer.mission_id.clone());
+        robot.step(out);
+        if answer.idle {
+            tokio::select! {
+                _ = shutdown.cancelled() => return SessionEnd::Finished,
+                _ = tokio::time::sleep(Duration::from_secs_f64(robot.period)) => {}
+            }
+        }
+    }
+}
+
+async fn realtime_session(
+    opts: &EdgeOptions,
+    robot: &mut SimRobot,
+    gov: &mut Governor,
+    link: &mut Link,
+    status: &mut StatusReporter,
+    hooks: &Hooks,
+    shutdown: &CancellationToken,
+) -> SessionEnd {
+    let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
+    let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let (mut idle, mut mission) = (true, String::new());
+    // The first frame goes out at once; then one per tick, after stepping.
+    let mut first = true;
+    loop {
+        tokio::select! {
+            _ = shutdown.cancelled() => return SessionEnd::Finished,
+            m = link.recv() => match m {
+                Err(e) => return SessionEnd::Lost(e),
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => {
+                    gov.on_command(v.stamp, twist_of(&v));
+                    idle = v.idle;
+                    mission = v.mission_id;
+                }
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
+                Ok(_) => {}
+            },
+            _ = tick.tick() => {
+                if link.last_heard().elapsed() > liveness {
+                    return SessionEnd::Lost(format!("nothing from the gateway for {} s", opts.liveness_timeout_s));
+                }
+                if !first {
+                    gov.set_estop(hooks.estop.is_engaged());
+                    let (out, verdict) = gov.output(robot.sim.time());
+                    if let Some(s) = status.update(robot.sim.time(), verdict) {
+                        if let Err(e) = link.offer(s) { return SessionEnd::Lost(e); }
+                    }
+                    observe(hooks, robot, out, verdict, gov, idle, mission.clone());
+                    robot.step(out);
+                }
+                first = false;
+                if robot.time_is_up() {
+                    return SessionEnd::Finished;
+                }
+                let (frame, odo, _, _) = robot.capture();
+                for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
+                    if let Err(e) = link.offer(msg) { return SessionEnd::Lost(e); }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,150 @@
+//! Conversions between the drivers' plain types and the `vlnav.v1` messages.
+
+use vlnav_proto::v1 as pb;
+use vlnav_sim::camera::CameraConfig;
+use vlnav_sim::{Frame, Pose2, Truth};
+
+use crate::safety::{Limits, Twist};
+
+/// The robot description sent in `EdgeHello`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RobotDescription {
+    pub limits: Limits,
+    pub footprint_length: f64,
+    pub footprint_width: f64,
+}
+
+pub fn pose(p: &Pose2) -> pb::Pose2D {
+    pb::Pose2D { x: p.x, y: p.y, theta: p.theta }
+}
+
+pub fn twist(t: &Twist) -> pb::Twist2D {
+    pb::Twist2D { linear: t.linear, angular: t.angular }
+}
+
+pub fn limits(d: &RobotDescription) -> pb::RobotLimits {
+    pb::RobotLimits {
+        max_linear: d.limits.max_linear,
+        max_angular: d.limits.max_angular,
+        max_linear_accel: d.limits.max_linear_accel,
+        max_angular_accel: d.limits.max_angular_accel,
+        footprint_length: d.footprint_length,
+        footprint_width: d.footprint_width,
+    }
+}
+
+/// Camera info of the simulated camera.
+pub fn sim_camera_info(c: &CameraConfig) -> pb::CameraInfo {
+    pb::CameraInfo {
+        width: c.width,
+        height: c.height,
+        intrinsics: Some(pb::CameraIntrinsics { fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy }),
+        mount: Some(pb::CameraMount {
+            translation: Some(pb::Point3 { x: c.mount[0], y: c.mount[1], z: c.mount[2] }),
+            roll: 0.0,
+            pitch: 0.0,
+            yaw: c.mount_yaw,
+        }),
+        depth_min_m: c.depth_min_m,
+        depth_max_m: c.depth_max_m,
+    }
+}
+
+/// Little-endian bytes of a u16 image.
+pub fn u16_le(data: &[u16]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(data.len() * 2);
+    for v in data {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out
+}
+
+/// Everything an `RgbdFrame` carries besides the images.
+#[derive(Clone, Debug)]
+pub struct FrameMeta<'a> {
+    pub robot_id: &'a str,
+    pub seq: u64,
+    pub stamp: f64,
+    pub camera: pb::CameraInfo,
+    pub odom: Pose2,
+    pub odom_twist: Twist,
+}
+
+/// A rendered simulator frame as an `RgbdFrame` (with its label image).
+pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
+    pb::RgbdFrame {
+        robot_id: meta.robot_id.to_string(),
+        seq: meta.seq,
+        stamp: meta.stamp,
+        camera: Some(meta.camera),
+        rgb: Some(pb::Image { width: f.width, height: f.height, encoding: pb::ImageEncoding::Rgb8 as i32, data: f.rgb.clone() }),
+        depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: u16_le(&f.depth_mm) }),
+        odom: Some(pose(&meta.odom)),
+        odom_twist: Some(twist(&meta.odom_twist)),
+        labels: Some(pb::LabelImage {
+            width: f.width,
+            height: f.height,
+            instance_ids: u16_le(&f.labels),
+            instances: f
+                .instances
+                .iter()
+                .map(|e| pb::LabelInstance {
+                    instance_id: e.instance_id as u32,
+                    class_id: e.class_id,
+                    identity: e.identity.clone(),
+                    semantic: e.semantic.as_str().to_string(),
+                })
+                .collect(),
+        }),
+    }
+}
+
+pub fn sim_truth(t: &Truth) -> pb::SimTruth {
+    pb::SimTruth {
+        pose: Some(pose(&t.pose)),
+        path_length_m: t.path_length_m,
+        hard_collisions: t.hard_collisions,
+        soft_collisions: t.soft_collisions,
+        odom_origin: Some(pose(&t.odom_origin)),
+    }
+}
+
+pub fn edge(kind: pb::edge_message::Kind) -> pb::EdgeMessage {
+    pb::EdgeMessage { kind: Some(kind) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn u16_images_are_little_endian() {
+        assert_eq!(u16_le(&[0x0102, 0xa0b0]), vec![0x02, 0x01, 0xb0, 0xa0]);
+    }
+
+    #[test]
+    fn a_rendered_frame_converts_with_its_label_table() {
+        let world = vlnav_sim::load_scenario("demo").unwrap();
+        let mut sim = vlnav_sim::Simulator::new(world, 0);
+        sim.set_camera(sim.camera().clone().with_resolution(64, 48).unwrap());
+        let f = sim.render();
+        let meta = FrameMeta {
+            robot_id: "husky-1",
+            seq: 3,
+            stamp: 0.3,
+            camera: sim_camera_info(sim.camera()),
+            odom: Pose2::default(),
+            odom_twist: Twist::ZERO,
+        };
+        let m = sim_frame(meta, &f);
+        let rgb = m.rgb.unwrap();
+        assert_eq!((rgb.width, rgb.height, rgb.data.len()), (64, 48, 64 * 48 * 3));
+        assert_eq!(m.depth.unwrap().data_mm.len(), 64 * 48 * 2);
+        let labels = m.labels.unwrap();
+        assert_eq!(labels.instance_ids.len(), 64 * 48 * 2);
+        assert!(labels.instances.iter().any(|i| i.semantic == "floor" && i.class_id == -1));
+        let cam = m.camera.unwrap();
+        assert!((cam.intrinsics.unwrap().fx - 343.159 / 10.0).abs() < 1e-9);
+        assert!((cam.mount.unwrap().translation.unwrap().z - 0.6).abs() < 1e-12);
+    }
+}

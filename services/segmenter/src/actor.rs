@@ -1,0 +1,57 @@
+//! The segmenter actor: owns the backend and the point settings; runs on its
+//! own thread (a 640×480 frame is a few milliseconds of CPU work).
+
+use tokio::sync::{mpsc, oneshot};
+use vlnav_runtime::actor::Mailbox;
+
+use crate::geometry::Camera;
+use crate::segment::{FrameView, PointSettings, SegmentBackend, SegmentError, SemanticLabels, Segmentation, segment};
+
+/// A request with its buffers owned (they cross threads).
+pub struct SegmentJob {
+    pub camera: Camera,
+    pub rgb: Vec<u8>,
+    pub depth_mm: Vec<u16>,
+    pub semantics: Option<SemanticLabels>,
+    pub classes: Option<Vec<String>>,
+    /// 0: the service default.
+    pub point_stride: usize,
+}
+
+pub enum Msg {
+    Segment { job: SegmentJob, reply: oneshot::Sender<Result<Segmentation, SegmentError>> },
+}
+
+pub struct SegmenterActor {
+    backend: Box<dyn SegmentBackend>,
+    settings: PointSettings,
+    default_stride: usize,
+}
+
+impl SegmenterActor {
+    pub fn new(backend: Box<dyn SegmentBackend>, settings: PointSettings, default_stride: usize) -> Self {
+        Self { backend, settings, default_stride }
+    }
+
+    pub fn spawn(self) -> Mailbox<Msg> {
+        let (mailbox, rx) = Mailbox::channel("segmenter", 32);
+        std::thread::Builder::new()
+            .name("segmenter-actor".into())
+            .spawn(move || self.run(rx))
+            .expect("spawn the segmenter actor");
+        mailbox
+    }
+
+    fn run(self, mut rx: mpsc::Receiver<Msg>) {
+        while let Some(Msg::Segment { job, reply }) = rx.blocking_recv() {
+            let _ = reply.send(self.handle(&job));
+        }
+    }
+
+    pub fn handle(&self, job: &SegmentJob) -> Result<Segmentation, SegmentError> {
+        let frame =
+            FrameView { camera: job.camera, rgb: &job.rgb, depth_mm: &job.depth_mm, semantics: job.semantics.as_ref() };
+        let stride = if job.point_stride == 0 { self.default_stride } else { job.point_stride };
+        segment(self.backend.as_ref(), &frame, job.classes.as_deref(), stride, &self.settings)
+    }
+}

