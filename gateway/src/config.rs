@@ -5,19 +5,19 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct GatewayOptions {
-    #[arg(long, env = "VLNAV_INGRESS_URI", default_value = "http://127.0.0.1:50052")]
+    #[arg(long, env = "VLNAV_INGRESS_ADDR", default_value = "http://127.0.0.1:50052")]
     pub ingress_uri: String,
-    #[arg(long, env = "VLNAV_PLANNER_URI", default_value = "http://127.0.0.1:50053")]
+    #[arg(long, env = "VLNAV_PLANNER_ADDR", default_value = "http://127.0.0.1:50053")]
     pub planner_uri: String,
-    #[arg(long, env = "VLNAV_DETECTOR_URI", default_value = "http://127.0.0.1:50054")]
+    #[arg(long, env = "VLNAV_DETECTOR_ADDR", default_value = "http://127.0.0.1:50054")]
     pub detector_uri: String,
-    #[arg(long, env = "VLNAV_REID_URI", default_value = "http://127.0.0.1:50055")]
+    #[arg(long, env = "VLNAV_REID_ADDR", default_value = "http://127.0.0.1:50055")]
     pub reid_uri: String,
-    #[arg(long, env = "VLNAV_SEGMENTER_URI", default_value = "http://127.0.0.1:50056")]
+    #[arg(long, env = "VLNAV_SEGMENTER_ADDR", default_value = "http://127.0.0.1:50056")]
     pub segmenter_uri: String,
-    #[arg(long, env = "VLNAV_SUBGOAL_URI", default_value = "http://127.0.0.1:50057")]
+    #[arg(long, env = "VLNAV_SUBGOAL_ADDR", default_value = "http://127.0.0.1:50057")]
     pub subgoal_uri: String,
-    #[arg(long, env = "VLNAV_LOCAL_PLANNER_URI", default_value = "http://127.0.0.1:50058")]
+    #[arg(long, env = "VLNAV_LOCAL_PLANNER_ADDR", default_value = "http://127.0.0.1:50058")]
     pub local_planner_uri: String,
     /// Where missions and their event logs persist.
     #[arg(long, env = "VLNAV_DATA_DIR", default_value = ".vlnav")]

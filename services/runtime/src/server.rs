@@ -101,7 +101,9 @@ pub async fn serve(
             tonic_reflection::server::Builder::configure()
                 .register_encoded_file_descriptor_set(vlnav_proto::FILE_DESCRIPTOR_SET)
                 .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
-                .with_service_name("grpc.health.v1.Health"),
+                .with_service_name("grpc.health.v1.Health")
+                .with_service_name("grpc.reflection.v1.ServerReflection")
+                .with_service_name("grpc.reflection.v1alpha.ServerReflection"),
             |b, name| b.with_service_name(*name),
         )
     };
@@ -137,6 +139,8 @@ pub async fn serve(
     tonic::transport::Server::builder()
         .timeout(Duration::from_secs_f64(cfg.request_timeout_s.max(0.001)))
         .tcp_nodelay(true)
+        .initial_stream_window_size(crate::client::STREAM_WINDOW)
+        .initial_connection_window_size(crate::client::CONNECTION_WINDOW)
         .layer(TelemetryLayer { stages: Arc::new(stages) })
         .add_routes(routes.routes())
         .serve_with_incoming_shutdown(TcpListenerStream::new(listener), drain)
