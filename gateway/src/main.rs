@@ -145,7 +145,12 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Cmd::Eval(args) => {
             let _telemetry = telemetry::init("vlnav")?;
-            vlnav_eval::run_eval(args).await.map(|_| ())
+            let data = args.out.join("gateway");
+            let up_args = UpArgs { no_robot: true, ephemeral_ports: true, data_dir: data, ..UpArgs::default() };
+            let stack = up(&up_args).await?;
+            let report = vlnav_eval::run_eval(args, stack.gateway_uri()).await;
+            stack.shutdown().await?;
+            report.map(|_| ())
         }
         Cmd::Profile(args) => {
             println!("{}", vlnav_traces::run_profile(args).await?);
