@@ -40,6 +40,126 @@ pub fn conv_bn(
     Ok(Conv2d::new(w, Some(shift), cfg))
 }
 
+/// A depthwise convolution (one k×k filter per channel) with bias. candle
+/// runs a grouped convolution as one small convolution per group, which makes
+/// depthwise layers (groups = channels) the bulk of MobileNetV2's and OSNet's
+/// CPU time; on the CPU this runs a direct kernel instead, elsewhere candle's.
+pub struct Depthwise {
+    weight: Tensor,
+    bias: Tensor,
+    stride: usize,
+    padding: usize,
+    kernel: usize,
+}
+
+impl Depthwise {
+    /// From a grouped Conv2d whose groups equal its channels.
+    pub fn new(weight: Tensor, bias: Tensor, stride: usize, padding: usize) -> Result<Self> {
+        let (_, one, k, k2) = weight.dims4()?;
+        if one != 1 || k != k2 {
+            candle_core::bail!("depthwise weights must be (C, 1, k, k), got {:?}", weight.dims());
+        }
+        Ok(Self { weight: weight.contiguous()?, bias: bias.contiguous()?, stride, padding, kernel: k })
+    }
+}
+
+impl Module for Depthwise {
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        if x.device().is_cpu() && x.dtype() == candle_core::DType::F32 {
+            let op = DepthwiseCpu { stride: self.stride, padding: self.padding, kernel: self.kernel };
+            x.contiguous()?.apply_op3_no_bwd(&self.weight, &self.bias, &op)
+        } else {
+            let channels = self.weight.dim(0)?;
+            let cfg = Conv2dConfig { padding: self.padding, stride: self.stride, dilation: 1, groups: channels, cudnn_fwd_algo: None };
+            Conv2d::new(self.weight.clone(), Some(self.bias.clone()), cfg).forward(x)
+        }
+    }
+}
+
+struct DepthwiseCpu {
+    stride: usize,
+    padding: usize,
+    kernel: usize,
+}
+
+fn f32_slice<'a>(s: &'a candle_core::CpuStorage, l: &candle_core::Layout, what: &str) -> Result<&'a [f32]> {
+    let candle_core::CpuStorage::F32(v) = s else { candle_core::bail!("depthwise {what}: f32 expected") };
+    let Some((start, end)) = l.contiguous_offsets() else { candle_core::bail!("depthwise {what}: contiguous expected") };
+    Ok(&v[start..end])
+}
+
+impl candle_core::CustomOp3 for DepthwiseCpu {
+    fn name(&self) -> &'static str {
+        "depthwise-conv2d"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &candle_core::CpuStorage,
+        l1: &candle_core::Layout,
+        s2: &candle_core::CpuStorage,
+        l2: &candle_core::Layout,
+        s3: &candle_core::CpuStorage,
+        l3: &candle_core::Layout,
+    ) -> Result<(candle_core::CpuStorage, candle_core::Shape)> {
+        let (x, w, b) = (f32_slice(s1, l1, "input")?, f32_slice(s2, l2, "weight")?, f32_slice(s3, l3, "bias")?);
+        let (n, c, h, wd) = l1.shape().dims4()?;
+        let (k, s, p) = (self.kernel, self.stride, self.padding);
+        if w.len() != c * k * k || b.len() != c {
+            candle_core::bail!("depthwise: {c} channels but {} weights and {} biases", w.len(), b.len());
+        }
+        if h + 2 * p < k || wd + 2 * p < k {
+            candle_core::bail!("depthwise: {h}×{wd} input is smaller than the {k}×{k} kernel");
+        }
+        let (ho, wo) = ((h + 2 * p - k) / s + 1, (wd + 2 * p - k) / s + 1);
+        let mut out = vec![0f32; n * c * ho * wo];
+        // Output columns ox whose input column ox·s + kx − p lies inside the row.
+        let col_range = |kx: usize| {
+            let lo = p.saturating_sub(kx).div_ceil(s);
+            let hi = if wd + p > kx { ((wd + p - kx - 1) / s + 1).min(wo) } else { 0 };
+            (lo, hi.max(lo))
+        };
+        let cols: Vec<(usize, usize)> = (0..k).map(col_range).collect();
+        for (plane, o) in out.chunks_exact_mut(ho * wo).enumerate() {
+            let ch = plane % c;
+            let input = &x[plane * h * wd..(plane + 1) * h * wd];
+            let filt = &w[ch * k * k..(ch + 1) * k * k];
+            o.fill(b[ch]);
+            for oy in 0..ho {
+                let orow = &mut o[oy * wo..(oy + 1) * wo];
+                for ky in 0..k {
+                    let iy = (oy * s + ky) as isize - p as isize;
+                    if iy < 0 || iy >= h as isize {
+                        continue;
+                    }
+                    let irow = &input[iy as usize * wd..(iy as usize + 1) * wd];
+                    for (kx, &(lo, hi)) in cols.iter().enumerate() {
+                        let wv = filt[ky * k + kx];
+                        let first = lo * s + kx - p;
+                        if s == 1 {
+                            for (ov, iv) in orow[lo..hi].iter_mut().zip(&irow[first..first + (hi - lo)]) {
+                                *ov += wv * iv;
+                            }
+                        } else {
+                            for (j, ov) in orow[lo..hi].iter_mut().enumerate() {
+                                *ov += wv * irow[first + j * s];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        Ok((candle_core::CpuStorage::F32(out), candle_core::Shape::from((n, c, ho, wo))))
+    }
+}
+
+/// `conv_bn` for a depthwise convolution, run by [`Depthwise`].
+pub fn depthwise_bn(channels: usize, kernel: usize, stride: usize, padding: usize, conv: VarBuilder, bn: VarBuilder) -> Result<Depthwise> {
+    let folded = conv_bn(channels, channels, kernel, stride, padding, channels, conv, bn)?;
+    let bias = folded.bias().cloned().expect("folded convolutions have a bias");
+    Depthwise::new(folded.weight().clone(), bias, stride, padding)
+}
+
 /// A plain bias-free convolution (no batch norm after it).
 pub fn conv(
     in_channels: usize,
@@ -124,6 +244,24 @@ mod tests {
         let got = folded.forward(&x)?;
         let err = (want - got)?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
         assert!(err < 1e-4, "max abs error {err}");
+        Ok(())
+    }
+
+    #[test]
+    fn the_depthwise_kernel_matches_candles_grouped_convolution() -> Result<()> {
+        let dev = Device::Cpu;
+        for (k, stride, padding, h, w) in [(3, 1, 1, 9, 7), (3, 2, 1, 9, 7), (3, 2, 1, 8, 8), (5, 2, 2, 11, 6), (3, 1, 0, 4, 5)] {
+            let c = 6;
+            let weight = Tensor::randn(0f32, 1.0, (c, 1, k, k), &dev)?;
+            let bias = Tensor::randn(0f32, 1.0, c, &dev)?;
+            let x = Tensor::randn(0f32, 1.0, (2, c, h, w), &dev)?;
+            let cfg = Conv2dConfig { padding, stride, dilation: 1, groups: c, cudnn_fwd_algo: None };
+            let want = Conv2d::new(weight.clone(), Some(bias.clone()), cfg).forward(&x)?;
+            let got = Depthwise::new(weight, bias, stride, padding)?.forward(&x)?;
+            assert_eq!(want.dims(), got.dims(), "k{k} s{stride} p{padding} {h}×{w}");
+            let err = (want - got)?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+            assert!(err < 1e-4, "k{k} s{stride} p{padding} {h}×{w}: max abs error {err}");
+        }
         Ok(())
     }
 

@@ -10,7 +10,7 @@
 use candle_core::{Module, Result, Tensor};
 use candle_nn::{Conv2d, Linear, VarBuilder};
 
-use crate::nn::{conv, conv_bn, conv1x1_bias, global_avg_pool, linear_bn};
+use crate::nn::{Depthwise, conv, conv_bn, conv1x1_bias, depthwise_bn, global_avg_pool, linear_bn};
 
 /// Embedding size of every torchreid OSNet (`feature_dim=512`).
 pub const EMBEDDING_DIM: usize = 512;
@@ -65,14 +65,14 @@ impl Module for ConvBn {
 /// torchreid `LightConv3x3`: 1×1 linear conv, depthwise 3×3, BN, ReLU.
 struct LightConv3x3 {
     pointwise: Conv2d,
-    depthwise_bn: Conv2d,
+    depthwise_bn: Depthwise,
 }
 
 impl LightConv3x3 {
     fn load(c: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
             pointwise: conv(c, c, 1, 1, 0, 1, vb.pp("conv1"))?,
-            depthwise_bn: conv_bn(c, c, 3, 1, 1, c, vb.pp("conv2"), vb.pp("bn"))?,
+            depthwise_bn: depthwise_bn(c, 3, 1, 1, vb.pp("conv2"), vb.pp("bn"))?,
         })
     }
 }
