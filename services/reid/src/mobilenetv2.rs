@@ -5,9 +5,9 @@
 //! state dict (`features.{i}.conv.{j}.weight`, batch norms with running stats).
 
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Conv2d, VarBuilder};
+use candle_nn::VarBuilder;
 
-use crate::nn::{conv_bn, depthwise_bn, global_avg_pool, sequential};
+use crate::nn::{Conv, conv_bn, depthwise_bn, global_avg_pool, sequential};
 
 /// Embedding size: the channels of the last 1×1 convolution.
 pub const EMBEDDING_DIM: usize = 1280;
@@ -24,7 +24,7 @@ struct ConvBnAct {
     relu6: bool,
 }
 
-fn dense(c: Conv2d) -> Box<dyn Module + Send + Sync> {
+fn dense(c: Conv) -> Box<dyn Module + Send + Sync> {
     Box::new(c)
 }
 

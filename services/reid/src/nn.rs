@@ -20,6 +20,53 @@ fn bn_scale_shift(channels: usize, vb: &VarBuilder) -> Result<(Tensor, Tensor)> 
     Ok((scale, shift))
 }
 
+/// A convolution as the networks use it: 1×1 stride-1 convolutions run as
+/// one matrix product over all pixels (no im2col copies), others through candle.
+pub enum Conv {
+    Pointwise { weight: Tensor, bias: Option<Tensor> },
+    General(Conv2d),
+}
+
+impl Conv {
+    fn new(weight: Tensor, bias: Option<Tensor>, cfg: Conv2dConfig) -> Result<Self> {
+        let (cout, cin, kh, kw) = weight.dims4()?;
+        if kh == 1 && kw == 1 && cfg.stride == 1 && cfg.padding == 0 && cfg.groups == 1 {
+            let bias = bias.map(|b| b.reshape((1, cout, 1))).transpose()?;
+            Ok(Conv::Pointwise { weight: weight.reshape((cout, cin))?.contiguous()?, bias })
+        } else {
+            Ok(Conv::General(Conv2d::new(weight, bias, cfg)))
+        }
+    }
+
+    /// Weight in Conv2d layout (C_out, C_in/groups, k, k) and bias.
+    fn parts(&self) -> Result<(Tensor, Option<Tensor>)> {
+        match self {
+            Conv::Pointwise { weight, bias } => {
+                let (cout, cin) = weight.dims2()?;
+                Ok((weight.reshape((cout, cin, 1, 1))?, bias.as_ref().map(|b| b.flatten_all()).transpose()?))
+            }
+            Conv::General(c) => Ok((c.weight().clone(), c.bias().cloned())),
+        }
+    }
+}
+
+impl Module for Conv {
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        match self {
+            Conv::Pointwise { weight, bias } => {
+                let (n, c, h, w) = x.dims4()?;
+                let y = weight.broadcast_matmul(&x.reshape((n, c, h * w))?)?;
+                let y = match bias {
+                    Some(b) => y.broadcast_add(b)?,
+                    None => y,
+                };
+                y.reshape((n, weight.dim(0)?, h, w))
+            }
+            Conv::General(c) => c.forward(x),
+        }
+    }
+}
+
 /// A bias-free `nn.Conv2d` (weights under `conv`) followed by `nn.BatchNorm2d`
 /// (under `bn`), folded into one convolution with bias.
 #[allow(clippy::too_many_arguments)]
@@ -32,12 +79,12 @@ pub fn conv_bn(
     groups: usize,
     conv: VarBuilder,
     bn: VarBuilder,
-) -> Result<Conv2d> {
+) -> Result<Conv> {
     let w = conv.get((out_channels, in_channels / groups, kernel, kernel), "weight")?;
     let (scale, shift) = bn_scale_shift(out_channels, &bn)?;
     let w = w.broadcast_mul(&scale.reshape((out_channels, 1, 1, 1))?)?;
     let cfg = Conv2dConfig { padding, stride, dilation: 1, groups, cudnn_fwd_algo: None };
-    Ok(Conv2d::new(w, Some(shift), cfg))
+    Conv::new(w, Some(shift), cfg)
 }
 
 /// A depthwise convolution (one k×k filter per channel) with bias. candle
@@ -155,9 +202,8 @@ impl candle_core::CustomOp3 for DepthwiseCpu {
 
 /// `conv_bn` for a depthwise convolution, run by [`Depthwise`].
 pub fn depthwise_bn(channels: usize, kernel: usize, stride: usize, padding: usize, conv: VarBuilder, bn: VarBuilder) -> Result<Depthwise> {
-    let folded = conv_bn(channels, channels, kernel, stride, padding, channels, conv, bn)?;
-    let bias = folded.bias().cloned().expect("folded convolutions have a bias");
-    Depthwise::new(folded.weight().clone(), bias, stride, padding)
+    let (weight, bias) = conv_bn(channels, channels, kernel, stride, padding, channels, conv, bn)?.parts()?;
+    Depthwise::new(weight, bias.expect("folded convolutions have a bias"), stride, padding)
 }
 
 /// A plain bias-free convolution (no batch norm after it).
@@ -169,17 +215,17 @@ pub fn conv(
     padding: usize,
     groups: usize,
     vb: VarBuilder,
-) -> Result<Conv2d> {
+) -> Result<Conv> {
     let w = vb.get((out_channels, in_channels / groups, kernel, kernel), "weight")?;
     let cfg = Conv2dConfig { padding, stride, dilation: 1, groups, cudnn_fwd_algo: None };
-    Ok(Conv2d::new(w, None, cfg))
+    Conv::new(w, None, cfg)
 }
 
 /// A 1×1 convolution with bias (squeeze-excitation style gates).
-pub fn conv1x1_bias(in_channels: usize, out_channels: usize, vb: VarBuilder) -> Result<Conv2d> {
+pub fn conv1x1_bias(in_channels: usize, out_channels: usize, vb: VarBuilder) -> Result<Conv> {
     let w = vb.get((out_channels, in_channels, 1, 1), "weight")?;
     let b = vb.get(out_channels, "bias")?;
-    Ok(Conv2d::new(w, Some(b), Conv2dConfig::default()))
+    Conv::new(w, Some(b), Conv2dConfig::default())
 }
 
 /// `nn.Linear` (under `linear`) followed by `nn.BatchNorm1d` (under `bn`), folded.
@@ -262,6 +308,20 @@ mod tests {
             let err = (want - got)?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
             assert!(err < 1e-4, "k{k} s{stride} p{padding} {h}×{w}: max abs error {err}");
         }
+        Ok(())
+    }
+
+    #[test]
+    fn pointwise_matrix_product_matches_candles_convolution() -> Result<()> {
+        let dev = Device::Cpu;
+        let weight = Tensor::randn(0f32, 1.0, (5, 3, 1, 1), &dev)?;
+        let bias = Tensor::randn(0f32, 1.0, 5, &dev)?;
+        let x = Tensor::randn(0f32, 1.0, (2, 3, 4, 6), &dev)?;
+        let want = Conv2d::new(weight.clone(), Some(bias.clone()), Conv2dConfig::default()).forward(&x)?;
+        let conv = Conv::new(weight, Some(bias), Conv2dConfig::default())?;
+        assert!(matches!(conv, Conv::Pointwise { .. }));
+        let err = (want - conv.forward(&x)?)?.abs()?.flatten_all()?.max(0)?.to_scalar::<f32>()?;
+        assert!(err < 1e-5, "max abs error {err}");
         Ok(())
     }
 
