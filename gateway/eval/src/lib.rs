@@ -134,6 +134,23 @@ fn resolve_suite(path: &Path) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/suite.toml")
 }
 
+/// Writes `layout-<scenario>-<instruction>.svg` for every instruction of the
+/// suite into `dir`: the world, the start, the destination and its success
+/// circle, and the route's waypoints.
+pub fn write_layouts(suite: &Suite, worlds: &[runner::LoadedWorld], dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let mut out = Vec::new();
+    for (si, sc) in suite.scenarios.iter().enumerate() {
+        for (ii, ins) in sc.instructions.iter().enumerate() {
+            let scene = runner::layout_scene(suite, si, ii, &worlds[si].world);
+            let path = dir.join(format!("layout-{}-{}.svg", sc.name, ins.id));
+            std::fs::write(&path, plot::render_svg(&scene)).with_context(|| format!("cannot write {}", path.display()))?;
+            out.push(path);
+        }
+    }
+    Ok(out)
+}
+
 /// Runs the suite against the gateway at `gateway_uri` and writes the report.
 pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<EvalReport> {
     anyhow::ensure!(args.jobs >= 1, "--jobs must be at least 1");
@@ -161,6 +178,7 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
     };
     let refs = ScenarioRef::from_suite(&suite);
     let ctx = RunContext::new(suite, settings)?;
+    let layouts = write_layouts(&ctx.suite, &ctx.worlds, &args.out.join("plots"))?;
 
     let bar = if args.no_progress {
         indicatif::ProgressBar::hidden()
@@ -210,6 +228,7 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
     bar.finish();
     let wall_s = started.elapsed().as_secs_f64();
     plots.sort();
+    plots.extend(layouts);
 
     let summaries = aggregate::summarise(&records);
     let markdown = report::markdown(&refs, &summaries, args.seed, trials);

@@ -247,14 +247,8 @@ fn origin_at(track: &[TruthSample], stamp: f64) -> Option<Pose> {
     track.get(k.saturating_sub(1)).map(|s| s.odom_origin)
 }
 
-fn plot_scene(
-    world: &World,
-    title: String,
-    start: Pose,
-    record: &TrialRecord,
-    track: &[TruthSample],
-    watched: &Watched,
-) -> PlotScene {
+/// The world's layout as a plot: structure, markings, labelled objects, the start.
+pub fn world_scene(world: &World, title: String, start: Pose) -> PlotScene {
     let poly = |shape: &Shape| -> Vec<Point2> {
         match shape {
             Shape::Polygon(pts) => pts.iter().map(|p| Point2::new(p.x, p.y)).collect(),
@@ -266,13 +260,7 @@ fn plot_scene(
                 .collect(),
         }
     };
-    let mut scene = PlotScene {
-        title,
-        start,
-        destination: record.destination,
-        success_radius: record.success_radius_m,
-        ..Default::default()
-    };
+    let mut scene = PlotScene { title, start, ..Default::default() };
     for s in &world.solids {
         let Some(e) = world.entity(s.entity) else { continue };
         if e.class_id >= 0 {
@@ -286,6 +274,7 @@ fn plot_scene(
                 at: Point2::new((lo.x + hi.x) / 2.0, (lo.y + hi.y) / 2.0),
                 radius: ((hi.x - lo.x).max(hi.y - lo.y)) / 2.0,
                 label,
+                outline: poly(&s.shape),
             });
         } else {
             scene.obstacles.push(poly(&s.shape));
@@ -293,7 +282,12 @@ fn plot_scene(
     }
     for p in &world.pedestrians {
         let at = p.position_at(0.0);
-        scene.objects.push(PlotObject { at: Point2::new(at.x, at.y), radius: p.radius, label: "pedestrian (t = 0)".into() });
+        scene.objects.push(PlotObject {
+            at: Point2::new(at.x, at.y),
+            radius: p.radius,
+            label: "pedestrian (t = 0)".into(),
+            outline: Vec::new(),
+        });
     }
     for m in &world.markings {
         let [r, g, b] = m.color;
@@ -301,6 +295,37 @@ fn plot_scene(
             scene.zones.push(PlotZone { polygon: poly(s), colour: format!("#{r:02x}{g:02x}{b:02x}") });
         }
     }
+    scene
+}
+
+/// A scenario's layout with one instruction's destination, success circle
+/// and (when it has a route) the route's waypoints as subgoals.
+pub fn layout_scene(suite: &Suite, scenario: usize, instruction: usize, world: &World) -> PlotScene {
+    let sc = &suite.scenarios[scenario];
+    let ins = &sc.instructions[instruction];
+    let start = pose_of(&world.start);
+    let mut scene = world_scene(world, format!("{} — {} — \"{}\"", sc.title, ins.mode, ins.text(start)), start);
+    scene.destination = ins.destination();
+    scene.success_radius = ins.radius;
+    let mut from = start.position();
+    for leg in &ins.route {
+        from = leg.end_point(from);
+        scene.subgoals.push(from);
+    }
+    scene
+}
+
+fn plot_scene(
+    world: &World,
+    title: String,
+    start: Pose,
+    record: &TrialRecord,
+    track: &[TruthSample],
+    watched: &Watched,
+) -> PlotScene {
+    let mut scene = world_scene(world, title, start);
+    scene.destination = record.destination;
+    scene.success_radius = record.success_radius_m;
     scene.true_path = track.iter().map(|s| s.pose.position()).collect();
     scene.odom_path = track.iter().map(|s| s.odom_in_world().position()).collect();
     for (stamp, goal) in &watched.subgoals {
