@@ -122,10 +122,10 @@ impl<'a> SpanTree<'a> {
         let by_id: HashMap<&str, &Span> = spans.iter().map(|s| (s.span_id.as_str(), s)).collect();
         let mut children: HashMap<&str, Vec<&Span>> = HashMap::new();
         for s in spans {
-            if let Some(p) = s.parent_id.as_deref() {
-                if p != s.span_id {
-                    children.entry(p).or_default().push(s);
-                }
+            if let Some(p) = s.parent_id.as_deref()
+                && p != s.span_id
+            {
+                children.entry(p).or_default().push(s);
             }
         }
         Self { by_id, children }
