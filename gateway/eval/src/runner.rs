@@ -417,7 +417,10 @@ async fn run_mission(
         .map_err(|s| anyhow::anyhow!("WatchMission({mission_id}): {:?}: {}", s.code(), s.message()))?
         .into_inner();
 
-    let mut mission_steps: Vec<StepRecord> = Vec::new();
+    // Every frame after submission; the mission's own are those whose answer
+    // carried its id (the gateway tags each VelocityCommand with it).
+    let mut after_submit: Vec<StepRecord> = Vec::new();
+    let mut finished_stamp = f64::INFINITY;
     let mut cancelled_for_time = false;
     let mut agent_done = false;
     loop {
@@ -466,6 +469,9 @@ async fn run_mission(
                             }
                         }
                         watched.metrics = f.metrics;
+                        if ev.stamp > 0.0 {
+                            finished_stamp = ev.stamp;
+                        }
                         break;
                     }
                     _ => {}
@@ -473,17 +479,15 @@ async fn run_mission(
             }
             s = rx.recv(), if !agent_done => {
                 let Some(s) = s else { agent_done = true; continue };
-                if s.mission_id == mission_id {
-                    let elapsed = mission_steps.first().map(|f: &StepRecord| s.stamp - f.stamp).unwrap_or(0.0);
-                    mission_steps.push(s);
-                    if elapsed > budget_s && !cancelled_for_time {
+                let elapsed = after_submit.first().map(|f: &StepRecord| s.stamp - f.stamp).unwrap_or(0.0);
+                after_submit.push(s);
+                if elapsed > budget_s && !cancelled_for_time {
                         cancelled_for_time = true;
                         watched.reason = format!("no result within {budget_s} s of sensor time");
                         missions
                             .cancel_mission(pb::CancelMissionRequest { mission_id: mission_id.clone() })
                             .await
                             .map_err(|s| anyhow::anyhow!("CancelMission({mission_id}): {:?}: {}", s.code(), s.message()))?;
-                    }
                 }
             }
             _ = tokio::time::sleep(stall) => {
@@ -495,16 +499,49 @@ async fn run_mission(
     // Frames already queued by the agent that still belong to the mission.
     let _ = agent.await;
     while let Ok(s) = rx.try_recv() {
-        if s.mission_id == mission_id {
-            mission_steps.push(s);
-        }
+        after_submit.push(s);
     }
-    Ok((watched, mission_steps))
+    Ok((watched, mission_frames(after_submit, &mission_id, finished_stamp)))
+}
+
+/// The frames of one mission: those answered under its id or, should the
+/// gateway leave commands untagged, every frame from submission up to the
+/// stamp of its `Finished` event.
+fn mission_frames(after_submit: Vec<StepRecord>, mission_id: &str, finished_stamp: f64) -> Vec<StepRecord> {
+    if after_submit.iter().any(|s| s.mission_id == mission_id) {
+        after_submit.into_iter().filter(|s| s.mission_id == mission_id).collect()
+    } else {
+        after_submit.into_iter().filter(|s| s.stamp <= finished_stamp + 1e-9).collect()
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn step(stamp: f64, mission: &str) -> StepRecord {
+        StepRecord {
+            seq: 0,
+            stamp,
+            odom: vlnav_sim::Pose2::new(0.0, 0.0, 0.0),
+            truth: None,
+            command: None,
+            applied: vlnav_edge_agent::Twist::ZERO,
+            verdict: vlnav_edge_agent::Verdict::NoCommand,
+            idle: mission.is_empty(),
+            mission_id: mission.into(),
+        }
+    }
+
+    #[test]
+    fn a_missions_frames_are_the_tagged_ones_or_those_up_to_its_end() {
+        let tagged = vec![step(0.0, ""), step(0.2, "m1"), step(0.4, "m1"), step(0.6, "")];
+        let got = mission_frames(tagged, "m1", 0.5);
+        assert_eq!(got.iter().map(|s| s.stamp).collect::<Vec<_>>(), vec![0.2, 0.4]);
+        let untagged = vec![step(0.0, ""), step(0.2, ""), step(0.4, ""), step(0.6, "")];
+        let got = mission_frames(untagged, "m1", 0.4);
+        assert_eq!(got.len(), 3);
+    }
 
     const WORLD: &str = r#"
 name = "t"
