@@ -138,6 +138,21 @@ fn red_floor_zone_is_passed_around_never_crossed() {
 }
 
 #[test]
+fn box_on_one_side_and_zone_on_the_other_are_both_respected() {
+    // A box to the front-left and a no-go zone to the front-right: the way
+    // between them is the only one, at the default weights.
+    let mut world = World::default();
+    world.add_box(2.0, 0.3, 2.4, 1.5, 0.6);
+    world.add_no_go_zone(3.0, -1.2, 3.8, 0.2);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(6.0, 0.0, 0.3), 200);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "did not reach the goal in {} frames", run.outputs.len());
+    let zone = run.poses.iter().map(|p| distance_to_rect(p, 3.0, -1.2, 3.8, 0.2)).fold(f64::INFINITY, f64::min);
+    let obstacle = run.poses.iter().map(|p| distance_to_rect(p, 2.0, 0.3, 2.4, 1.5)).fold(f64::INFINITY, f64::min);
+    assert!(zone > HALF_WIDTH, "footprint entered the zone: centre {zone:.3} m from it");
+    assert!(obstacle > HALF_WIDTH + 0.05, "centre came within {obstacle:.3} m of the box");
+}
+
+#[test]
 fn no_free_path_stops_with_blocked() {
     // A dead end as wide as the robot plus 0.33 m: side walls and a wall 1 m ahead.
     let mut world = World::default();
