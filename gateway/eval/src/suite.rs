@@ -88,10 +88,34 @@ impl Default for RunDefaults {
 pub struct Leg {
     /// Where this leg ends, metres.
     pub at: [f64; 2],
-    /// The landmark that marks this leg's end, as spoken ("chair",
-    /// "potted plant"); none for a purely geometric leg.
+    /// The landmark at `at`, as spoken ("chair", "potted plant"); none for a
+    /// purely geometric leg, which ends at `at`.
     #[serde(default)]
     pub find: Option<String>,
+    /// Stopping distance from the landmark's near side, as spoken, metres.
+    #[serde(default)]
+    pub d_s: Option<f64>,
+    /// The landmark's radius (half its footprint), metres: a leg with a
+    /// landmark ends `d_s + size` short of `at` along the approach.
+    #[serde(default)]
+    pub size: f64,
+}
+
+impl Leg {
+    /// Where the robot should stop at the end of this leg, coming from `from`.
+    pub fn end_point(&self, from: Point2) -> Point2 {
+        let at = Point2::new(self.at[0], self.at[1]);
+        if self.find.is_none() {
+            return at;
+        }
+        let short = self.d_s.unwrap_or(0.0) + self.size;
+        let d = from.distance(at);
+        if d <= short || d < 1e-9 {
+            return from;
+        }
+        let k = (d - short) / d;
+        Point2::new(from.x + (at.x - from.x) * k, from.y + (at.y - from.y) * k)
+    }
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -122,10 +146,13 @@ pub struct Scenario {
     pub title: String,
     /// The simulator's world file, relative to the suite file.
     pub world: PathBuf,
-    /// The robot's nominal start pose in the world: x, y (m), heading (deg).
-    /// Must match the world file's start pose; geometric instructions are
-    /// dead-reckoned from it.
-    pub start: [f64; 3],
+    /// Overrides the suite's start-position noise, ± metres.
+    #[serde(default)]
+    pub start_noise_xy_m: Option<f64>,
+    /// Overrides the suite's start-heading noise, ± degrees (a symmetric room
+    /// is one where the robot cannot tell which way it faces).
+    #[serde(default)]
+    pub start_noise_theta_deg: Option<f64>,
     /// The row of the paper's Table V this scenario stands in for.
     #[serde(default)]
     pub paper_table_v: Option<String>,
@@ -162,8 +189,12 @@ pub enum SuiteError {
 }
 
 impl Scenario {
-    pub fn start_pose(&self) -> Pose {
-        Pose::new(self.start[0], self.start[1], self.start[2].to_radians())
+    /// Start noise of this scenario: (± metres, ± radians).
+    pub fn start_noise(&self, run: &RunDefaults) -> (f64, f64) {
+        (
+            self.start_noise_xy_m.unwrap_or(run.start_noise_xy_m),
+            self.start_noise_theta_deg.unwrap_or(run.start_noise_theta_deg).to_radians(),
+        )
     }
 
     pub fn instructions_of(&self, mode: Mode) -> Vec<&Instruction> {
@@ -207,7 +238,7 @@ pub fn geometric_text(start: Pose, route: &[Leg]) -> String {
     let mut pose = start;
     let mut parts = Vec::new();
     for leg in route {
-        let target = Point2::new(leg.at[0], leg.at[1]);
+        let target = leg.end_point(pose.position());
         let dx = target.x - pose.x;
         let dy = target.y - pose.y;
         let dist = dx.hypot(dy);
@@ -234,9 +265,20 @@ pub fn geometric_text(start: Pose, route: &[Leg]) -> String {
 
 /// "find the chair, then find the potted plant": the route's landmarks only.
 pub fn visual_text(route: &[Leg]) -> String {
-    let parts: Vec<String> =
-        route.iter().filter_map(|l| l.find.as_ref()).map(|t| format!("find the {t} and go close to it")).collect();
+    let parts: Vec<String> = route
+        .iter()
+        .filter_map(|l| l.find.as_ref().map(|t| (t, l.d_s)))
+        .map(|(t, d_s)| match d_s {
+            Some(d) => format!("stop {} before the {t}", metres(d)),
+            None => format!("find the {t} and go close to it"),
+        })
+        .collect();
     capitalise(&parts.join(", then "))
+}
+
+fn metres(d: f64) -> String {
+    let r = (d * 10.0).round() / 10.0;
+    if (r - 1.0).abs() < 1e-9 { "1 meter".into() } else if r.fract() == 0.0 { format!("{r:.0} meters") } else { format!("{r:.1} meters") }
 }
 
 fn capitalise(s: &str) -> String {
@@ -295,8 +337,12 @@ impl Suite {
             if !names.insert(s.name.as_str()) {
                 return Err(invalid(at("name"), "is used by another scenario"));
             }
-            if !s.start.iter().all(|v| v.is_finite()) {
-                return Err(invalid(at("start"), "must be three finite numbers [x_m, y_m, heading_deg]"));
+            for (field, v) in [("start_noise_xy_m", s.start_noise_xy_m), ("start_noise_theta_deg", s.start_noise_theta_deg)] {
+                if let Some(v) = v
+                    && !(v.is_finite() && v >= 0.0)
+                {
+                    return Err(invalid(at(field), "must be a finite number ≥ 0"));
+                }
             }
             if let Some(b) = s.max_mission_s
                 && !(b.is_finite() && b > 0.0)
@@ -325,8 +371,14 @@ impl Suite {
                 if !(ins.radius.is_finite() && ins.radius > 0.0) {
                     return Err(invalid(at("radius"), "must be a positive distance in metres"));
                 }
-                if ins.route.iter().any(|l| !l.at.iter().all(|v| v.is_finite())) {
+                    if ins.route.iter().any(|l| !l.at.iter().all(|v| v.is_finite())) {
                     return Err(invalid(at("route.at"), "every waypoint must be two finite numbers [x_m, y_m]"));
+                }
+                if ins.route.iter().any(|l| l.d_s.is_some_and(|d| !(d.is_finite() && (0.0..=5.0).contains(&d)))) {
+                    return Err(invalid(at("route.d_s"), "a stopping distance must be between 0 and 5 m"));
+                }
+                if ins.route.iter().any(|l| !(l.size.is_finite() && l.size >= 0.0)) {
+                    return Err(invalid(at("route.size"), "must be a finite radius ≥ 0"));
                 }
                 if ins.destination.is_none() && ins.route.is_empty() {
                     return Err(invalid(at("destination"), "give a destination or a route ending at it"));
@@ -399,6 +451,7 @@ pub fn start_offset(seed: u64, noise_xy_m: f64, noise_theta_rad: f64) -> Pose {
 pub fn plan_trials(suite: &Suite, trials: u32, master_seed: u64, modes: &[Mode]) -> Vec<TrialSpec> {
     let mut out = Vec::new();
     for (si, s) in suite.scenarios.iter().enumerate() {
+        let noise = s.start_noise(&suite.run);
         for mode in s.modes() {
             if !modes.is_empty() && !modes.contains(&mode) {
                 continue;
@@ -413,11 +466,7 @@ pub fn plan_trials(suite: &Suite, trials: u32, master_seed: u64, modes: &[Mode])
                     instruction: of_mode[t as usize % of_mode.len()],
                     trial: t,
                     seed,
-                    start_offset: start_offset(
-                        seed,
-                        suite.run.start_noise_xy_m,
-                        suite.run.start_noise_theta_deg.to_radians(),
-                    ),
+                    start_offset: start_offset(seed, noise.0, noise.1),
                 });
             }
         }
@@ -437,7 +486,7 @@ trials = 4
 name = "corridor"
 title = "Featureless corridor"
 world = "worlds/corridor.toml"
-start = [0.0, 0.0, 0.0]
+start_noise_theta_deg = 20
 paper_table_iv = "Featureless Corridor"
 
 [[scenario.instruction]]
@@ -479,7 +528,7 @@ route = [{ at = [10.0, 0.0] }, { at = [12.0, 3.0], find = "chair" }]
     fn derived_texts_follow_the_route() {
         let s = parse(MINIMAL).unwrap();
         let c = &s.scenarios[0];
-        let start = c.start_pose();
+        let start = Pose::new(0.0, 0.0, 0.0);
         assert_eq!(c.instructions[0].text(start), "Move 10 meters forward, then find the chair");
         // 10 m ahead, then atan2(3, 2) = 56.3° left of the current heading, 3.6 m.
         assert_eq!(
@@ -491,12 +540,22 @@ route = [{ at = [10.0, 0.0] }, { at = [12.0, 3.0], find = "chair" }]
 
     #[test]
     fn geometric_turns_are_relative_to_the_current_heading() {
-        let route = [Leg { at: [0.0, 5.0], find: None }, Leg { at: [3.0, 5.0], find: None }];
+        let route = [Leg { at: [0.0, 5.0], find: None, d_s: None, size: 0.0 }, Leg { at: [3.0, 5.0], find: None, d_s: None, size: 0.0 }];
         let text = geometric_text(Pose::new(0.0, 0.0, 0.0), &route);
         assert_eq!(text, "Turn left 90 degrees and move 5.0 meters forward, then turn right 90 degrees and move 3.0 meters forward");
         // Facing +y already: no turn first.
         let text = geometric_text(Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), &route[..1]);
         assert_eq!(text, "Move 5.0 meters forward");
+    }
+
+    #[test]
+    fn landmark_legs_end_short_of_the_landmark() {
+        let leg = Leg { at: [10.0, 0.0], find: Some("chair".into()), d_s: Some(1.0), size: 0.5 };
+        let end = leg.end_point(Point2::new(0.0, 0.0));
+        assert!((end.x - 8.5).abs() < 1e-12 && end.y.abs() < 1e-12);
+        let route = [leg];
+        assert_eq!(geometric_text(Pose::new(0.0, 0.0, 0.0), &route), "Move 8.5 meters forward");
+        assert_eq!(visual_text(&route), "Stop 1 meter before the chair");
     }
 
     #[test]
@@ -548,10 +607,11 @@ route = [{ at = [10.0, 0.0] }, { at = [12.0, 3.0], find = "chair" }]
         assert!(a.iter().all(|t| s.scenarios[0].instructions[t.instruction].mode == t.mode));
         let only_visual = plan_trials(&s, 3, 99, &[Mode::Visual]);
         assert_eq!(only_visual.len(), 3);
-        // Noise stays within the configured bounds.
+        // Noise stays within the configured bounds (the scenario overrides the heading's).
         for t in &a {
             assert!(t.start_offset.x.abs() <= 0.10 && t.start_offset.y.abs() <= 0.10);
-            assert!(t.start_offset.theta.abs() <= 3f64.to_radians() + 1e-12);
+            assert!(t.start_offset.theta.abs() <= 20f64.to_radians() + 1e-12);
         }
+        assert!(a.iter().any(|t| t.start_offset.theta.abs() > 3f64.to_radians()));
     }
 }

@@ -72,7 +72,7 @@ pub async fn mission_trace_id(gateway: &str, mission_id: &str) -> anyhow::Result
     if mission.trace_id.trim().is_empty() {
         anyhow::bail!("mission {mission_id} has no trace id (the gateway recorded none for it)");
     }
-    Ok(normalize_trace_id(&mission.trace_id).with_context(|| format!("gateway returned a bad trace id for mission {mission_id}"))?)
+    normalize_trace_id(&mission.trace_id).with_context(|| format!("gateway returned a bad trace id for mission {mission_id}"))
 }
 
 /// Reads every span of `trace_id` from `source`.

@@ -8,29 +8,32 @@
 use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
 
-use crate::span::Span;
+use crate::span::{Span, SpanKind};
 
 /// Span name of one control cycle: the gateway's span from a sensor frame's
 /// arrival to the velocity command it answers with.
 pub const CONTROL_CYCLE: &str = "control-cycle";
 
-/// A stage is a span name within one service ("detect" in the detector; the
-/// gateway's own "plan" span differs from the planner's server span "plan").
+/// A stage is a span name within one service and span kind: the gateway's
+/// own "plan" span differs from the planner's server span "plan" — by
+/// service in a cluster, by kind when `vlnav up` runs every server in one
+/// process under one service name.
 #[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct StageKey {
     pub service: String,
     pub name: String,
+    pub kind: SpanKind,
 }
 
 impl StageKey {
     pub fn of(span: &Span) -> Self {
-        Self { service: span.service.clone(), name: span.name.clone() }
+        Self { service: span.service.clone(), name: span.name.clone(), kind: span.kind }
     }
 }
 
 impl std::fmt::Display for StageKey {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{} [{}]", self.name, self.service)
+        write!(f, "{} [{}, {}]", self.name, self.service, self.kind.as_str())
     }
 }
 
@@ -119,10 +122,10 @@ impl<'a> SpanTree<'a> {
         let by_id: HashMap<&str, &Span> = spans.iter().map(|s| (s.span_id.as_str(), s)).collect();
         let mut children: HashMap<&str, Vec<&Span>> = HashMap::new();
         for s in spans {
-            if let Some(p) = s.parent_id.as_deref() {
-                if p != s.span_id {
-                    children.entry(p).or_default().push(s);
-                }
+            if let Some(p) = s.parent_id.as_deref()
+                && p != s.span_id
+            {
+                children.entry(p).or_default().push(s);
             }
         }
         Self { by_id, children }
@@ -339,15 +342,16 @@ impl Profile {
         let svc_w = self.stages.iter().map(|st| st.stage.service.len()).max().unwrap_or(7).max(7);
         let _ = writeln!(
             s,
-            "  {:<name_w$}  {:<svc_w$}  {:>6}  {:>4}  {:>8}  {:>8}  {:>8}  {:>8}  {:>9}",
-            "stage", "service", "count", "err", "p50", "p95", "p99", "max", "total"
+            "  {:<name_w$}  {:<svc_w$}  {:<8}  {:>6}  {:>4}  {:>8}  {:>8}  {:>8}  {:>8}  {:>9}",
+            "stage", "service", "kind", "count", "err", "p50", "p95", "p99", "max", "total"
         );
         for st in &self.stages {
             let _ = writeln!(
                 s,
-                "  {:<name_w$}  {:<svc_w$}  {:>6}  {:>4}  {:>8}  {:>8}  {:>8}  {:>8}  {:>9}",
+                "  {:<name_w$}  {:<svc_w$}  {:<8}  {:>6}  {:>4}  {:>8}  {:>8}  {:>8}  {:>8}  {:>9}",
                 st.stage.name,
                 st.stage.service,
+                st.stage.kind.as_str(),
                 st.count,
                 st.errors,
                 fmt_ms(st.p50_ms),
@@ -374,7 +378,7 @@ impl Profile {
                 );
                 let label = |p: &PathShare| {
                     if p.stage.name == cl.cycle_name {
-                        format!("{} (own time) [{}]", p.stage.name, p.stage.service)
+                        format!("{} (own time) [{}, {}]", p.stage.name, p.stage.service, p.stage.kind.as_str())
                     } else {
                         p.stage.to_string()
                     }
@@ -439,7 +443,7 @@ mod tests {
     }
 
     fn key(name: &str, service: &str) -> StageKey {
-        StageKey { service: service.into(), name: name.into() }
+        StageKey { service: service.into(), name: name.into(), kind: SpanKind::Internal }
     }
 
     #[test]
@@ -480,6 +484,13 @@ mod tests {
         let planner = find("plan", "vlnav-planner");
         assert_eq!((planner.count, planner.errors), (2, 1));
         assert_eq!(find("plan", "vlnav-gateway").count, 1);
+        // One process, one service name (`vlnav up`): the kind keeps the
+        // gateway's span apart from the server span of the same name.
+        let mut server = sp(4, None, "plan", "vlnav-gateway", 500, 505);
+        server.kind = SpanKind::Server;
+        let both = stage_stats(&[sp(5, None, "plan", "vlnav-gateway", 0, 10), server]);
+        assert_eq!(both.len(), 2);
+        assert_eq!(both.iter().map(|s| s.stage.kind).collect::<Vec<_>>(), [SpanKind::Internal, SpanKind::Server]);
         // Largest total first: gateway plan 300, planner 290, detect 210.
         assert_eq!(stats[0].stage, key("plan", "vlnav-gateway"));
         assert_eq!(stats[2].stage, key("detect", "vlnav-detector"));

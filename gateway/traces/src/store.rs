@@ -138,10 +138,10 @@ impl Memory {
     fn evict(&mut self, limit: usize) {
         // The newest trace stays even when it alone is over the limit.
         while self.spans > limit && self.order.len() > 1 {
-            if let Some(oldest) = self.order.pop_front() {
-                if let Some(spans) = self.by_trace.remove(&oldest) {
-                    self.spans -= spans.len();
-                }
+            if let Some(oldest) = self.order.pop_front()
+                && let Some(spans) = self.by_trace.remove(&oldest)
+            {
+                self.spans -= spans.len();
             }
         }
     }

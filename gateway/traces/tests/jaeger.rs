@@ -91,7 +91,7 @@ async fn fetches_a_trace_over_http_and_profiles_it() {
     let report = profile_trace(&SpanSource::Jaeger(url.clone()), TRACE, "control-cycle").await.unwrap();
     let detect = report.lines().find(|l| l.trim_start().starts_with("detect ")).unwrap_or_else(|| panic!("{report}"));
     let cols: Vec<&str> = detect.split_whitespace().collect();
-    assert_eq!(cols[..8], ["detect", "vlnav-detector", "2", "1", "31.5", "52.0", "52.0", "52.0"], "{report}");
+    assert_eq!(cols[..9], ["detect", "vlnav-detector", "server", "2", "1", "31.5", "52.0", "52.0", "52.0"], "{report}");
     assert!(report.contains("2 `control-cycle` cycles: p50 80.0 ms"), "{report}");
 
     let other = "0123456789abcdef0123456789abcdef";

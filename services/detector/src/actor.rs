@@ -80,7 +80,7 @@ impl Backend {
                 let model = YoloV8::load(&path, opts.yolo_size, 80, &dev).map_err(|e| match e {
                     ModelError::Missing(p) => anyhow::anyhow!(
                         "{} is missing: YOLOv8 weights are not distributed with vlnav; convert an ultralytics checkpoint \
-                         to candle naming (see services/detector/README.md) and pass --yolo-weights, or use the default \
+                         to candle naming (see services/detector/README.md) and pass --detector-yolo-weights, or use the default \
                          NanoDet backend (weights from deploy/fetch-models.sh)",
                         p.display()
                     ),

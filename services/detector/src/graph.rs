@@ -110,7 +110,8 @@ struct Step {
 enum Op {
     Input(usize),
     Identity,
-    Conv2d { filter: Tensor, stride: usize, dilation: usize },
+    /// `bias` is set when the following Add of a per-channel constant was fused in.
+    Conv2d { filter: Tensor, bias: Option<Tensor>, stride: usize, dilation: usize },
     Add,
     LeakyRelu(f64),
     Pad,
@@ -308,7 +309,7 @@ impl Graph {
                         Some(Value::Float(t)) if t.rank() == 4 => t.permute((3, 2, 0, 1))?.contiguous()?,
                         _ => return Err(node_err(node, "the filter must be a rank-4 float constant")),
                     };
-                    Op::Conv2d { filter, stride, dilation }
+                    Op::Conv2d { filter, bias: None, stride, dilation }
                 }
                 other => return Err(node_err(node, format!("op {other} is not supported"))),
             };
@@ -316,6 +317,7 @@ impl Graph {
         }
 
         let outputs = def.outputs.iter().map(|o| parse_src(o, &index)).collect::<Result<Vec<_>, _>>()?;
+        fuse_conv_bias(&mut steps, &consts, &consumers, &outputs)?;
         let mut last_use = vec![0usize; n];
         for (si, step) in steps.iter().enumerate() {
             for s in &step.inputs {
@@ -467,7 +469,7 @@ impl Graph {
                 }
                 Value::Float(x.permute(perm)?)
             }
-            Op::Conv2d { filter, stride, dilation } => {
+            Op::Conv2d { filter, bias, stride, dilation } => {
                 let x = float(0)?;
                 let nchw = x.permute((0, 3, 1, 2))?;
                 let cin = nchw.dim(1)?;
@@ -475,7 +477,10 @@ impl Graph {
                 if fin == 0 || cin % fin != 0 {
                     return Err(err(format!("input has {cin} channels, filter expects {fin}")));
                 }
-                let y = nchw.conv2d(filter, 0, *stride, *dilation, cin / fin)?;
+                let mut y = nchw.conv2d(filter, 0, *stride, *dilation, cin / fin)?;
+                if let Some(b) = bias {
+                    y = y.broadcast_add(b)?;
+                }
                 Value::Float(y.permute((0, 2, 3, 1))?)
             }
             Op::MaxPool { k, stride } => {
@@ -564,6 +569,38 @@ impl Graph {
             }
         })
     }
+}
+
+/// Folds `Add(Conv2D(x), c)` with a per-channel constant `c` into the
+/// convolution, so the bias is added in the convolution's own (contiguous
+/// NCHW) layout instead of through the NHWC view; the Add becomes an Identity.
+fn fuse_conv_bias(
+    steps: &mut [Step],
+    consts: &HashMap<usize, Value>,
+    consumers: &[Vec<usize>],
+    outputs: &[Src],
+) -> Result<(), GraphError> {
+    let step_of: HashMap<usize, usize> = steps.iter().enumerate().map(|(i, s)| (s.node, i)).collect();
+    for i in 0..steps.len() {
+        if !matches!(steps[i].op, Op::Add) || steps[i].inputs.len() != 2 {
+            continue;
+        }
+        let (conv_src, bias_src) = (steps[i].inputs[0], steps[i].inputs[1]);
+        let Some(&ci) = step_of.get(&conv_src.node) else { continue };
+        let sole_use = consumers[conv_src.node].len() == 1 && outputs.iter().all(|o| o.node != conv_src.node);
+        let Some(Value::Float(bias)) = consts.get(&bias_src.node) else { continue };
+        let Op::Conv2d { filter, bias: existing, .. } = &steps[ci].op else { continue };
+        if !sole_use || existing.is_some() || bias.rank() != 1 || bias.dim(0)? != filter.dim(0)? {
+            continue;
+        }
+        let b = bias.reshape((1, bias.dim(0)?, 1, 1))?;
+        if let Op::Conv2d { bias, .. } = &mut steps[ci].op {
+            *bias = Some(b);
+        }
+        steps[i].op = Op::Identity;
+        steps[i].inputs.truncate(1);
+    }
+    Ok(())
 }
 
 /// Pads dimension `dim` of `x` with `left`/`right` copies of `value`.

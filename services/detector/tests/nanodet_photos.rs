@@ -186,3 +186,28 @@ async fn motorcycle_depth_from_the_stereo_ground_truth() {
     let (near, far) = depths.iter().fold((f32::MAX, 0.0f32), |(a, b), &d| (a.min(d), b.max(d)));
     assert!((near..=far).contains(&measured), "{measured:.3} m outside the motorcycle's {near:.3}–{far:.3} m");
 }
+
+/// The actor runs queued requests as one batch; a batch must give each image
+/// what it gets alone.
+#[test]
+fn a_batched_forward_equals_single_images() {
+    use vlnav_detector::detection::DetectFilter;
+    use vlnav_detector::nanodet::{NanoDet, NanoDetFiles};
+    nanodet_options();
+    let model = NanoDet::load(&NanoDetFiles::in_dir(&models_dir().join("nanodet")), &candle_core::Device::Cpu).unwrap();
+    let a = image::open(require("photos/astronaut.png")).unwrap().into_rgb8();
+    let b = image::open(require("photos/chelsea.png")).unwrap().into_rgb8();
+    let all = DetectFilter { class_ids: vec![], min_score: 0.3 };
+    let cats = DetectFilter { class_ids: vec![CAT], min_score: 0.3 };
+    let batch = model.detect(&[&a, &b], &[all.clone(), cats.clone()], 0.45).unwrap();
+    let alone = [model.detect(&[&a], &[all], 0.45).unwrap().remove(0), model.detect(&[&b], &[cats], 0.45).unwrap().remove(0)];
+    for (got, want) in batch.iter().zip(&alone) {
+        assert!(!want.is_empty());
+        assert_eq!(got.len(), want.len(), "{got:?} vs {want:?}");
+        for (g, w) in got.iter().zip(want) {
+            assert_eq!(g.class_id, w.class_id);
+            assert!((g.score - w.score).abs() < 1e-4 && (g.x_min - w.x_min).abs() < 0.05 && (g.y_max - w.y_max).abs() < 0.05, "{g:?} vs {w:?}");
+        }
+    }
+    assert!(batch[1].iter().all(|d| d.class_id == CAT));
+}

@@ -140,6 +140,8 @@ struct Shared {
 impl Shared {
     /// Pairs the newest colour and depth images when their stamps agree.
     fn try_assemble(&mut self, min_period: f64, tolerance: f64) -> Option<RosFrame> {
+        // A frame without intrinsics cannot be projected: wait for camera_info.
+        self.intrinsics?;
         let (c, d) = (self.color.as_ref()?, self.depth.as_ref()?);
         if (c.stamp - d.stamp).abs() > tolerance || c.width != d.width || c.height != d.height {
             return None;
@@ -482,7 +484,10 @@ mod tests {
     #[test]
     fn frames_pair_colour_and_depth_by_stamp_at_the_frame_rate() {
         let img = |stamp| Some(Image { stamp, width: 2, height: 1, data: vec![0; 6] });
-        let mut s = Shared { color: img(1.0), depth: img(1.3), ..Default::default() };
+        let mut s = Shared { color: img(1.0), depth: img(1.01), ..Default::default() };
+        assert!(s.try_assemble(0.09, 0.05).is_none(), "no frames before camera_info");
+        s.intrinsics = Some(pb::CameraIntrinsics { fx: 1.0, fy: 1.0, cx: 1.0, cy: 0.5 });
+        s.depth = img(1.3);
         assert!(s.try_assemble(0.09, 0.05).is_none(), "stamps 0.3 s apart do not pair");
         s.depth = img(1.01);
         let f = s.try_assemble(0.09, 0.05).unwrap();

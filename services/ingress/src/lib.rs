@@ -22,6 +22,7 @@ pub mod convert;
 pub mod ct2;
 pub mod grpc;
 pub mod input;
+pub mod network;
 pub mod resample;
 pub mod text;
 pub mod trim;

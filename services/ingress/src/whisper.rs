@@ -6,10 +6,11 @@ use std::path::{Path, PathBuf};
 
 use candle_core::{D, DType, Device, IndexOp, Tensor};
 use candle_nn::VarBuilder;
-use candle_transformers::models::whisper::{self as w, audio, model::Whisper};
+use candle_transformers::models::whisper::{self as w, audio};
 use tokenizers::Tokenizer;
 
 use crate::convert::WhisperConfig;
+use crate::network::Network;
 
 /// Whisper's input rate.
 pub const SAMPLE_RATE: u32 = w::SAMPLE_RATE as u32;
@@ -99,7 +100,7 @@ struct SpecialTokens {
 
 /// A loaded Whisper model with its tokenizer and mel filter bank.
 pub struct SpeechRecognizer {
-    model: Whisper,
+    network: Network,
     config: WhisperConfig,
     tokenizer: Tokenizer,
     mel_filters: Vec<f32>,
@@ -143,7 +144,7 @@ impl SpeechRecognizer {
 
         let bytes = std::fs::read(&files.weights).map_err(|e| load_err(&files.weights, e))?;
         let vb = VarBuilder::from_buffered_safetensors(bytes, DType::F32, device).map_err(|e| load_err(&files.weights, e))?;
-        let model = Whisper::load(&vb, config.to_candle()).map_err(|e| load_err(&files.weights, e))?;
+        let network = Network::load(&config, vb).map_err(|e| load_err(&files.weights, e))?;
 
         // Never generated: the configured non-speech symbols and every special
         // token after end-of-text (task, language, timestamps, …), so the
@@ -166,7 +167,7 @@ impl SpeechRecognizer {
         }
         let suppress = Tensor::from_vec(mask, vocab, device)?;
         let suppress_at_begin = Tensor::from_vec(begin, vocab, device)?;
-        Ok(Self { model, config, tokenizer, mel_filters, special, suppress, suppress_at_begin, device: device.clone() })
+        Ok(Self { network, config, tokenizer, mel_filters, special, suppress, suppress_at_begin, device: device.clone() })
     }
 
     pub fn config(&self) -> &WhisperConfig {
@@ -178,7 +179,7 @@ impl SpeechRecognizer {
     /// (the caller has gone) and what was decoded so far is returned.
     pub fn recognize(&mut self, pcm: &[f32], keep_going: &mut dyn FnMut() -> bool) -> Result<Recognition, ModelError> {
         let started = std::time::Instant::now();
-        let cfg = self.model.config.clone();
+        let cfg = self.config.to_candle();
         let mel = audio::pcm_to_mel(&cfg, pcm, &self.mel_filters);
         let n_frames = mel.len() / cfg.num_mel_bins;
         let mel = Tensor::from_vec(mel, (1, cfg.num_mel_bins, n_frames), &self.device)?;
@@ -210,33 +211,31 @@ impl SpeechRecognizer {
 
     fn decode_window(&mut self, mel: &Tensor, keep_going: &mut dyn FnMut() -> bool) -> Result<DecodedWindow, ModelError> {
         let started = std::time::Instant::now();
-        let features = self.model.encoder.forward(mel, true)?;
+        let audio = self.network.encoder.forward(mel)?;
+        let mut state = self.network.decoder.start(&audio)?;
         // Materialise the encoder output so its time is not charged to decoding (CUDA is asynchronous).
-        features.device().synchronize()?;
+        self.device.synchronize()?;
         let encode_s = started.elapsed().as_secs_f64();
         let started = std::time::Instant::now();
         let prompt = [self.special.start_of_transcript, self.special.no_timestamps];
-        let mut tokens = prompt.to_vec();
         let max_new = self.config.max_target_positions / 2 - prompt.len();
+        let mut tokens: Vec<u32> = Vec::new();
         let mut sum_logprob = 0.0;
         let mut no_speech_prob = 0.0;
+        let mut feed: Vec<u32> = prompt.to_vec();
         for step in 0..max_new {
             if !keep_going() {
                 break;
             }
-            let input = Tensor::new(tokens.as_slice(), &self.device)?.unsqueeze(0)?;
-            let hidden = self.model.decoder.forward(&input, &features, step == 0)?;
+            let hidden = self.network.decoder.forward(&feed, &mut state)?;
             if step == 0
                 && let Some(no_speech) = self.special.no_speech
             {
                 // Read at the start-of-transcript position, as Whisper does.
-                let logits = self.model.decoder.final_linear(&hidden.i((..1, ..1))?)?.i((0, 0))?;
-                let probs = candle_nn::ops::softmax_last_dim(&logits.to_dtype(DType::F32)?)?;
+                let probs = candle_nn::ops::softmax_last_dim(&self.network.decoder.logits(&hidden, 0)?)?;
                 no_speech_prob = probs.i(no_speech as usize)?.to_scalar::<f32>()? as f64;
             }
-            let last = hidden.dim(1)? - 1;
-            let logits = self.model.decoder.final_linear(&hidden.i((..1, last..))?)?.i((0, 0))?.to_dtype(DType::F32)?;
-            let mut logits = logits.broadcast_add(&self.suppress)?;
+            let mut logits = self.network.decoder.logits(&hidden, feed.len() - 1)?.broadcast_add(&self.suppress)?;
             if step == 0 {
                 logits = logits.broadcast_add(&self.suppress_at_begin)?;
             }
@@ -247,13 +246,14 @@ impl SpeechRecognizer {
                 break;
             }
             tokens.push(next);
-            if let Some(keep) = repetition_cut(&tokens[prompt.len()..]) {
-                tokens.truncate(prompt.len() + keep);
+            if let Some(keep) = repetition_cut(&tokens) {
+                tokens.truncate(keep);
                 break;
             }
+            feed = vec![next];
         }
         let decode_s = started.elapsed().as_secs_f64();
-        Ok(DecodedWindow { tokens: tokens.split_off(prompt.len()), sum_logprob, no_speech_prob, encode_s, decode_s })
+        Ok(DecodedWindow { tokens, sum_logprob, no_speech_prob, encode_s, decode_s })
     }
 }
 

@@ -69,3 +69,25 @@ async fn every_accepted_encoding_gives_the_words() {
         assert!(wer <= MAX_WER, "{what}: WER {wer:.3}: heard {:?} ({:?})", t.text, scoring_words(&t.text));
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn speech_longer_than_one_window_is_decoded_window_by_window() {
+    let mut served = serve(options()).await;
+    // Four instructions with half a second between them: about 35 s, two 30 s windows.
+    let said = [INSTRUCTIONS[0], INSTRUCTIONS[1], INSTRUCTIONS[4], INSTRUCTIONS[5]];
+    let mut samples = Vec::new();
+    for text in said {
+        samples.extend(decode_wav(&speak(text)).unwrap().samples);
+        samples.extend(std::iter::repeat_n(0.0, 11_025));
+    }
+    let wav = encode_wav(&samples, 1, 22_050, SampleEncoding::I16);
+    let t = transcribe(&mut served.client, chunks(AudioFormat::Wav, 0, &wav, 64 * 1024)).await.unwrap();
+    assert!(t.audio_seconds > 30.0, "{} s", t.audio_seconds);
+    let reference = said.join(" ");
+    let wer = word_error_rate(&reference, &t.text);
+    eprintln!("{:.1} s in two windows: WER {wer:.3}: {}", t.audio_seconds, t.text);
+    assert!(wer <= MAX_WER, "WER {wer:.3}: heard {:?}", t.text);
+    // Words from both windows are there.
+    let heard = t.text.to_lowercase();
+    assert!(heard.contains("left turn") && heard.contains("pharmacy") && heard.contains("report back"), "{heard}");
+}

@@ -10,7 +10,7 @@ use vlnav_subgoal::camera::{Camera, DepthView};
 use vlnav_subgoal::geometry::{GoalSpec, Pose2};
 
 use crate::cloud::{CloudBuilder, CloudParams};
-use crate::control::{FollowParams, RobotState, StepInput, StepOutput};
+use crate::control::{FollowParams, RobotState, StepInput, StepOutput, View};
 use crate::planner::Planner;
 
 /// One validated frame and goal.
@@ -67,9 +67,17 @@ async fn run(mut a: Actor, mut rx: mpsc::Receiver<Msg>) {
                 let output = state.step(
                     &a.planner,
                     &a.follow,
-                    StepInput { stamp: r.stamp, pose: r.pose, goal: r.goal, cloud: &cloud, max_speed: r.max_speed },
+                    StepInput {
+                        stamp: r.stamp,
+                        pose: r.pose,
+                        goal: r.goal,
+                        cloud: &cloud,
+                        max_speed: r.max_speed,
+                        view: View::pinhole(r.camera.width, r.camera.intrinsics.fx, r.camera.mount.yaw),
+                    },
                 );
-                let _ = reply.send(StepReply { output, obstacle_cells: cloud.cells.len() });
+                let obstacle_cells = state.cloud.cells.len();
+                let _ = reply.send(StepReply { output, obstacle_cells });
             }
             Msg::Reset { robot_id, reply } => {
                 let _ = reply.send(a.robots.remove(&robot_id).is_some());

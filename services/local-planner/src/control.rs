@@ -14,6 +14,13 @@
 //!   period (at 5 fps the CMU gain alone would overshoot); speed ramps up by
 //!   `max_accel·dt` only while the bearing is below 0.1 rad, otherwise down,
 //!   and slows within `slow_down_distance` of the goal.
+//! - Obstacle memory: the camera sees ±43°, so an obstacle leaves the view as
+//!   soon as the robot turns away from it, and a plan made without it would
+//!   turn straight back. Cells of recent frames (`memory_s`, 3 s of sensor
+//!   time) are kept in `odom` and merged into the plan while they are outside
+//!   the current view (inside it, the current frame is the truth, so moved
+//!   obstacles are forgotten). The memory is dropped when the odometry jumps
+//!   (a reset at a reached subgoal) or time runs backwards.
 //! - No progress: while moving, if the distance to the goal has not dropped
 //!   by `progress_distance` (0.1 m) within `progress_window_s` (5 s of sensor
 //!   time), the step reports NO_PROGRESS once with a stop and the window
@@ -22,7 +29,7 @@
 use nalgebra::Vector2;
 use vlnav_subgoal::geometry::{GoalSpec, Pose2, wrap_angle};
 
-use crate::cloud::ObstacleCloud;
+use crate::cloud::{Cell, ObstacleCloud};
 use crate::planner::{Planner, Scratch, Selection};
 
 /// Path-following and watchdog settings.
@@ -44,6 +51,13 @@ pub struct FollowParams {
     pub progress_window_s: f64,
     /// Frame period assumed before two stamps are known, s (the authors' 5 fps).
     pub nominal_period_s: f64,
+    /// How long obstacle cells outside the view are remembered, s.
+    pub memory_s: f64,
+    /// Closer than this the camera does not see the floor-level space, so
+    /// remembered cells are kept even inside the view's angle, m.
+    pub memory_near_m: f64,
+    /// Remembered cells farther than this are dropped, m.
+    pub memory_range_m: f64,
 }
 
 impl Default for FollowParams {
@@ -62,6 +76,9 @@ impl Default for FollowParams {
             progress_distance: 0.1,
             progress_window_s: 5.0,
             nominal_period_s: 0.2,
+            memory_s: 3.0,
+            memory_near_m: 0.6,
+            memory_range_m: 4.25,
         }
     }
 }
@@ -84,6 +101,36 @@ pub struct StepInput<'a> {
     pub cloud: &'a ObstacleCloud,
     /// Cruise speed (≤ 0: the top speed), m/s.
     pub max_speed: f64,
+    /// What the camera sees of the plane around the robot.
+    pub view: View,
+}
+
+/// The camera's horizontal view in `base_link`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct View {
+    /// Direction of the optical axis, rad (the mount's yaw).
+    pub yaw: f64,
+    /// Half the horizontal field of view, rad (D455: about 43°).
+    pub half_fov: f64,
+}
+
+impl View {
+    /// The view of a pinhole camera `width` pixels wide with focal length `fx`.
+    pub fn pinhole(width: u32, fx: f64, yaw: f64) -> Self {
+        Self { yaw, half_fov: (width as f64 / 2.0 / fx).atan() }
+    }
+
+    fn sees(&self, p: &Vector2<f64>, near: f64) -> bool {
+        p.norm() >= near && wrap_angle(p.y.atan2(p.x) - self.yaw).abs() < self.half_fov
+    }
+}
+
+/// An obstacle cell remembered in `odom`.
+#[derive(Clone, Copy, Debug)]
+struct Remembered {
+    at: Vector2<f64>,
+    cell: Cell,
+    stamp: f64,
 }
 
 /// The command and what led to it.
@@ -112,6 +159,10 @@ pub struct RobotState {
     /// The latest obstacle cloud and chosen path.
     pub cloud: ObstacleCloud,
     pub last_selection: Option<Selection>,
+    /// The chosen path in odom, for the course it set.
+    last_path_odom: Vec<Vector2<f64>>,
+    memory: Vec<Remembered>,
+    last_pose: Option<Pose2>,
     scratch: Scratch,
 }
 
@@ -122,19 +173,57 @@ fn clamp_turn(rate: f64, error: f64, limit: f64, dt: f64) -> f64 {
 }
 
 impl RobotState {
+    /// This frame's cells plus remembered cells outside the view; the
+    /// memory becomes this frame's cells and the still-valid old ones.
+    fn merge_memory(&mut self, cloud: &ObstacleCloud, input: &StepInput<'_>, p: &FollowParams) -> ObstacleCloud {
+        let mut cells = cloud.cells.clone();
+        let mut kept = Vec::with_capacity(self.memory.len() + cloud.cells.len());
+        for m in self.memory.drain(..) {
+            if input.stamp - m.stamp > p.memory_s {
+                continue;
+            }
+            let b = input.pose.odom_to_base(&m.at);
+            if b.norm() > p.memory_range_m || input.view.sees(&b, p.memory_near_m) {
+                continue;
+            }
+            cells.push(Cell { x: b.x as f32, y: b.y as f32, ..m.cell });
+            kept.push(m);
+        }
+        for c in &cloud.cells {
+            let at = input.pose.base_to_odom_2d(&Vector2::new(c.x as f64, c.y as f64));
+            kept.push(Remembered { at, cell: *c, stamp: input.stamp });
+        }
+        self.memory = kept;
+        ObstacleCloud { cells, raw_points: cloud.raw_points }
+    }
+
+    /// Obstacle cells currently remembered (this frame's included).
+    pub fn remembered_cells(&self) -> usize {
+        self.memory.len()
+    }
+
     /// Plans one step. `cloud` replaces the stored cloud.
     pub fn step(&mut self, planner: &Planner, p: &FollowParams, input: StepInput<'_>) -> StepOutput {
         let dt = match self.last_stamp {
             Some(t) if input.stamp > t && input.stamp - t < 2.0 => input.stamp - t,
             _ => p.nominal_period_s,
         };
+        let time_went_back = self.last_stamp.is_some_and(|t| input.stamp < t);
+        let jumped = self.last_pose.is_some_and(|q| {
+            (q.position() - input.pose.position()).norm() > 0.5 + 2.0 * p.max_speed * dt
+        });
+        if time_went_back || jumped {
+            self.memory.clear();
+            self.last_path_odom.clear();
+        }
+        self.last_pose = Some(input.pose);
         self.last_stamp = Some(input.stamp);
         if self.last_goal != Some(input.goal) {
             self.last_goal = Some(input.goal);
             self.progress = None;
             self.rotating = false;
         }
-        self.cloud = input.cloud.clone();
+        self.cloud = self.merge_memory(input.cloud, &input, p);
         let goal = input.goal;
         let goal_base = input.pose.odom_to_base(&goal.pose.position());
         let distance = goal_base.norm();
@@ -151,6 +240,7 @@ impl RobotState {
         };
         let stop = |s: &mut Self, mut out: StepOutput, status: StepStatus| {
             s.last_speed = 0.0;
+            s.last_path_odom.clear();
             s.progress = None;
             out.status = status;
             out
@@ -176,11 +266,19 @@ impl RobotState {
         }
 
         let speed = if input.max_speed > 0.0 { input.max_speed.min(p.max_speed) } else { p.max_speed };
-        let plan = planner.plan(input.cloud, goal_base, speed / p.max_speed, &mut self.scratch);
+        // The course held: where last frame's path crosses the look-ahead circle now.
+        let course = self
+            .last_path_odom
+            .iter()
+            .map(|q| input.pose.odom_to_base(q))
+            .find(|q| q.norm() >= p.look_ahead_m && q.x > 0.0)
+            .map_or(0.0, |q| q.y.atan2(q.x));
+        let plan = planner.plan(&self.cloud, goal_base, speed / p.max_speed, course, &mut self.scratch);
         out.free_paths = plan.free_paths;
         out.path_scale = plan.scale;
         let Some(sel) = plan.selection else {
             self.last_selection = None;
+            self.last_path_odom.clear();
             return stop(self, out, StepStatus::Blocked);
         };
         let look = sel
@@ -199,6 +297,7 @@ impl RobotState {
             (self.last_speed - p.max_accel * dt).max(0.0).min(target)
         };
         out.linear = v;
+        self.last_path_odom = sel.points.iter().step_by(5).map(|q| input.pose.base_to_odom_2d(q)).collect();
         out.selection = Some(sel.clone());
         self.last_selection = Some(sel);
         out.status = StepStatus::Moving;

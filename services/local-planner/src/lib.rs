@@ -50,6 +50,9 @@ pub struct Options {
     /// Penalty for passing a low (0.10–0.15 m) bump.
     #[arg(long = "local-planner-w-low", env = "VLNAV_LOCAL_PLANNER_W_LOW", default_value_t = 0.3)]
     pub w_low: f64,
+    /// Per radian the robot must turn now (path bearing at the look-ahead).
+    #[arg(long = "local-planner-w-turn", env = "VLNAV_LOCAL_PLANNER_W_TURN", default_value_t = 0.1)]
+    pub w_turn: f64,
     /// Top speed, m/s, and yaw-rate limit, rad/s (Husky A200).
     #[arg(long = "local-planner-max-speed", env = "VLNAV_LOCAL_PLANNER_MAX_SPEED", default_value_t = 1.0)]
     pub max_speed: f64,
@@ -92,6 +95,7 @@ impl Default for Options {
             w_semantic: 1.2,
             beta: 1.5,
             w_low: 0.3,
+            w_turn: 0.1,
             max_speed: 1.0,
             max_yaw_rate: 1.57,
             max_accel: 1.0,
@@ -129,6 +133,7 @@ impl Options {
             ("--local-planner-w-semantic", self.w_semantic),
             ("--local-planner-beta", self.beta),
             ("--local-planner-w-low", self.w_low),
+            ("--local-planner-w-turn", self.w_turn),
             ("--local-planner-depth-min", self.depth_min_m),
         ];
         for (name, v) in non_negative {
@@ -150,7 +155,9 @@ impl Options {
                 semantic: self.w_semantic,
                 beta: self.beta,
                 low: self.w_low,
+                turn: self.w_turn,
             },
+            look_ahead_m: self.look_ahead_m,
             ..PlannerParams::default()
         }
     }

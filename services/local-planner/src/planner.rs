@@ -14,9 +14,11 @@
 //!
 //! where the distances come from Euclidean distance transforms of the
 //! obstacle and no-go cells (0.1 m grid) sampled every 0.1 m along the path.
-//! When the goal lies inside the cropped path the heading term becomes the
-//! bearing difference between the path point at the goal's range and the
-//! goal (the CMU `dirDiff`), since a path end beyond the goal says nothing.
+//! When the goal lies inside the cropped path, the path's "end" is its point
+//! at the goal's range (a path end beyond the goal says nothing): the heading
+//! term is the miss angle there (bearing of that point vs the goal's, CMU's
+//! `dirDiff`) plus the angle between the path's heading there and the
+//! straight line to the goal, so direct paths beat ones that swerve late.
 //!
 //! Clearance: the paths are traced by the robot's centre. One table per scale
 //! level, each built with radius `clearance / scale`, so the metric clearance
@@ -46,11 +48,16 @@ pub struct CostWeights {
     pub beta: f64,
     /// Added when a low (0.10–0.15 m) bump lies within the clearance.
     pub low: f64,
+    /// Per radian between the path's bearing at the look-ahead distance and
+    /// the course held so far (the previous frame's path at the same
+    /// distance, or straight ahead): keeps the choice from flipping between
+    /// near-equal detours frame after frame.
+    pub turn: f64,
 }
 
 impl Default for CostWeights {
     fn default() -> Self {
-        Self { goal: 1.0, obstacle: 0.6, alpha: 2.0, semantic: 1.2, beta: 1.5, low: 0.3 }
+        Self { goal: 1.0, obstacle: 0.6, alpha: 2.0, semantic: 1.2, beta: 1.5, low: 0.3, turn: 0.3 }
     }
 }
 
@@ -75,6 +82,8 @@ pub struct PlannerParams {
     pub weights: CostWeights,
     /// Cell of the distance transforms used by the cost, m.
     pub distance_cell: f64,
+    /// Where the turn term measures a path's bearing (the follower's look-ahead), m.
+    pub look_ahead_m: f64,
 }
 
 impl Default for PlannerParams {
@@ -92,6 +101,7 @@ impl Default for PlannerParams {
             goal_clear_range: 0.5,
             weights: CostWeights::default(),
             distance_cell: 0.1,
+            look_ahead_m: 0.5,
         }
     }
 }
@@ -226,9 +236,10 @@ impl Planner {
         &self.levels[level].table
     }
 
-    /// Plans toward `goal` (`base_link`) at `speed_fraction` of the top speed.
-    pub fn plan(&self, cloud: &ObstacleCloud, goal: Vector2<f64>, speed_fraction: f64, scratch: &mut Scratch) -> Plan {
-        self.plan_with(cloud, goal, speed_fraction, scratch, Method::Table)
+    /// Plans toward `goal` (`base_link`) at `speed_fraction` of the top speed;
+    /// `course` is the bearing held so far (rad, 0 = straight ahead).
+    pub fn plan(&self, cloud: &ObstacleCloud, goal: Vector2<f64>, speed_fraction: f64, course: f64, scratch: &mut Scratch) -> Plan {
+        self.plan_with(cloud, goal, speed_fraction, course, scratch, Method::Table)
     }
 
     pub fn plan_with(
@@ -236,6 +247,7 @@ impl Planner {
         cloud: &ObstacleCloud,
         goal: Vector2<f64>,
         speed_fraction: f64,
+        course: f64,
         scratch: &mut Scratch,
         method: Method,
     ) -> Plan {
@@ -248,7 +260,7 @@ impl Planner {
         scratch.dist_obs.compute(&self.field, cloud.cells.iter().filter(|c| c.blocking > 0).map(|c| (c.x as f64, c.y as f64)));
         scratch.dist_sem.compute(&self.field, cloud.cells.iter().filter(|c| c.no_go).map(|c| (c.x as f64, c.y as f64)));
         loop {
-            let (selection, free) = self.evaluate(cloud, goal, level, range, scratch, method);
+            let (selection, free) = self.evaluate(cloud, goal, course, level, range, scratch, method);
             if selection.is_some() {
                 return Plan { selection, free_paths: free, scale: self.levels[level].scale, range };
             }
@@ -315,6 +327,7 @@ impl Planner {
         &self,
         cloud: &ObstacleCloud,
         goal: Vector2<f64>,
+        course: f64,
         level: usize,
         range: f64,
         scratch: &mut Scratch,
@@ -329,6 +342,7 @@ impl Planner {
         let k_end = Path::index_at_radius(crop_radius + 1e-9).max(1);
         let goal_inside = goal_dist / scale < crop_radius;
         let k_goal = Path::index_at_radius(goal_dist / scale + 1e-9).max(1);
+        let k_look = Path::index_at_radius(self.params.look_ahead_m / scale + 1e-9).clamp(1, k_end);
         let cost_n = ((range.min(scale * PATH_RADIUS)) / 0.1 + 1e-9).floor() as usize;
         let cost_n = cost_n.min(lvl.cost_samples);
         let all = PathSet::all();
@@ -350,11 +364,14 @@ impl Planner {
                 let heading_error = if goal_inside {
                     let e = path.points[k_goal];
                     wrap_angle(e[1].atan2(e[0]) - goal_bearing).abs()
+                        + wrap_angle(path.tangent(k_goal) - goal_bearing).abs()
                 } else {
                     let e = path.points[k_end];
                     wrap_angle((g.y - e[1]).atan2(g.x - e[0]) - path.tangent(k_end)).abs()
                 };
-                let mut cost = w.goal * heading_error;
+                let look = path.points[k_look];
+                let turn = wrap_angle(self.params.rotations[r] + look[1].atan2(look[0]) - course).abs();
+                let mut cost = w.goal * heading_error + w.turn * turn;
                 if let Some(b) = best
                     && cost >= b.0
                 {

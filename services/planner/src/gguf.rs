@@ -19,7 +19,9 @@ use crate::validate::extract_json;
 /// The assembled weights under the models directory.
 pub const GEMMA_FILE: &str = "gemma/gemma3-270m-q4_k_m.gguf";
 /// Most tokens generated for one plan.
-pub const MAX_NEW_TOKENS: usize = 200;
+pub const MAX_NEW_TOKENS: usize = 120;
+/// The start of every answer, given to the model rather than generated.
+pub const ANSWER_OPENING: &str = " [{\"action\":\"";
 
 /// SentencePiece tokenizer rebuilt from GGUF metadata.
 pub struct SpmTokenizer {
@@ -206,7 +208,8 @@ impl GemmaChat {
             }
             out_ids.push(next);
             let text = self.tokenizer.decode(&out_ids);
-            if extract_json(&text).is_some() || text.contains("\n\n") || text.contains("Instruction:") {
+            // One plan per line, as in the examples.
+            if text.contains('\n') || extract_json(&format!("{ANSWER_OPENING}{text}")).is_some() {
                 break;
             }
             logits = Self::logits(&mut state, &[next], pos, &self.device).map_err(err)?;
@@ -221,8 +224,13 @@ impl ChatModel for GemmaChat {
         "gguf"
     }
 
-    /// A base model has no chat template: the system text, then the user text.
-    fn complete(&mut self, system: &str, user: &str, _schema: &Value) -> Result<String, LlmError> {
-        self.generate(&format!("{system}\n\n{user}"))
+    /// A base model has no chat template: the system text, then the user
+    /// text, then the opening of the answer (`[{"action":"`), which the
+    /// model continues; the closed action set is then one word away.
+    /// The compact constraints replace the full system prompt: past the
+    /// model's 512-token sliding window its answers degrade.
+    fn complete(&mut self, _system: &str, user: &str, _schema: &Value) -> Result<String, LlmError> {
+        let out = self.generate(&format!("{}\n\n{user}{ANSWER_OPENING}", crate::llm::compact_system_prompt()))?;
+        Ok(format!("{}{out}", ANSWER_OPENING.trim_start()))
     }
 }

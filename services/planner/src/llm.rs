@@ -65,6 +65,19 @@ pub fn system_prompt() -> String {
     )
 }
 
+/// The static constraints in brief, for small local models whose sliding
+/// attention window (512 tokens for Gemma 3 270M) the full class list would
+/// overflow: the action set, units, limits and the most common classes.
+pub fn compact_system_prompt() -> String {
+    let common = [0, 1, 2, 13, 16, 39, 41, 56, 57, 58, 60, 62, 63, 72];
+    let classes = common.iter().map(|&i| format!("{i} {}", vlnav_proto::coco::CLASSES[i])).collect::<Vec<_>>().join(", ");
+    format!(
+        "Robot plans as JSON. Actions: MOVE (yaw radians, left positive; f_dist metres, at most {MAX_STEP_M}), \
+         FIND (target, id = COCO class id, optional person), FOLLOW (target, id, optional duration_s), RETURN. \
+         Class ids include: {classes}. One plan per line."
+    )
+}
+
 /// The user message: examples, then the instruction.
 pub fn user_prompt(instruction: &str) -> String {
     let mut s = String::new();

@@ -46,7 +46,10 @@ impl Validator {
     /// Validates a plan in its JSON form (text, possibly with prose or code
     /// fences around it, as language models write it).
     pub fn validate_text(&self, text: &str) -> Result<Validated, Vec<String>> {
-        let json = extract_json(text).ok_or_else(|| vec!["no JSON array or object found in the output".to_string()])?;
+        let json = extract_json(text).ok_or_else(|| {
+            let head: String = text.chars().take(120).collect();
+            vec![format!("no complete JSON array or object in the output (it begins {head:?})")]
+        })?;
         let value: Value = serde_json::from_str(json).map_err(|e| vec![format!("not valid JSON: {e}")])?;
         self.validate_value(value)
     }

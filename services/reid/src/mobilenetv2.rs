@@ -5,9 +5,9 @@
 //! state dict (`features.{i}.conv.{j}.weight`, batch norms with running stats).
 
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Conv2d, VarBuilder};
+use candle_nn::VarBuilder;
 
-use crate::nn::{conv_bn, global_avg_pool, sequential};
+use crate::nn::{Conv, conv_bn, depthwise_bn, global_avg_pool, sequential};
 
 /// Embedding size: the channels of the last 1×1 convolution.
 pub const EMBEDDING_DIM: usize = 1280;
@@ -18,10 +18,14 @@ pub const INPUT_SIZE: usize = 224;
 const SETTINGS: [(usize, usize, usize, usize); 7] =
     [(1, 16, 1, 1), (6, 24, 2, 2), (6, 32, 3, 2), (6, 64, 4, 2), (6, 96, 3, 1), (6, 160, 3, 2), (6, 320, 1, 1)];
 
-/// A conv + folded BN, optionally followed by ReLU6.
+/// A conv (dense or depthwise) + folded BN, optionally followed by ReLU6.
 struct ConvBnAct {
-    conv: Conv2d,
+    conv: Box<dyn Module + Send + Sync>,
     relu6: bool,
+}
+
+fn dense(c: Conv) -> Box<dyn Module + Send + Sync> {
+    Box::new(c)
 }
 
 impl Module for ConvBnAct {
@@ -45,17 +49,17 @@ impl InvertedResidual {
         let mut idx = 0;
         if expand != 1 {
             layers.push(ConvBnAct {
-                conv: conv_bn(inp, hidden, 1, 1, 0, 1, vb.pp(idx), vb.pp(idx + 1))?,
+                conv: dense(conv_bn(inp, hidden, 1, 1, 0, 1, vb.pp(idx), vb.pp(idx + 1))?),
                 relu6: true,
             });
             idx += 3;
         }
         layers.push(ConvBnAct {
-            conv: conv_bn(hidden, hidden, 3, stride, 1, hidden, vb.pp(idx), vb.pp(idx + 1))?,
+            conv: Box::new(depthwise_bn(hidden, 3, stride, 1, vb.pp(idx), vb.pp(idx + 1))?),
             relu6: true,
         });
         idx += 3;
-        layers.push(ConvBnAct { conv: conv_bn(hidden, oup, 1, 1, 0, 1, vb.pp(idx), vb.pp(idx + 1))?, relu6: false });
+        layers.push(ConvBnAct { conv: dense(conv_bn(hidden, oup, 1, 1, 0, 1, vb.pp(idx), vb.pp(idx + 1))?), relu6: false });
         Ok(Self { layers, residual: stride == 1 && inp == oup })
     }
 }
@@ -91,7 +95,7 @@ impl MobileNetV2 {
     pub fn load(vb: VarBuilder) -> Result<Self> {
         let f = vb.pp("features");
         let mut stages = Vec::with_capacity(19);
-        stages.push(Stage::Conv(ConvBnAct { conv: conv_bn(3, 32, 3, 2, 1, 1, f.pp("0.0"), f.pp("0.1"))?, relu6: true }));
+        stages.push(Stage::Conv(ConvBnAct { conv: dense(conv_bn(3, 32, 3, 2, 1, 1, f.pp("0.0"), f.pp("0.1"))?), relu6: true }));
         let mut inp = 32;
         for (t, c, n, s) in SETTINGS {
             for i in 0..n {
@@ -102,7 +106,7 @@ impl MobileNetV2 {
         }
         let last = stages.len();
         stages.push(Stage::Conv(ConvBnAct {
-            conv: conv_bn(inp, EMBEDDING_DIM, 1, 1, 0, 1, f.pp(format!("{last}.0")), f.pp(format!("{last}.1")))?,
+            conv: dense(conv_bn(inp, EMBEDDING_DIM, 1, 1, 0, 1, f.pp(format!("{last}.0")), f.pp(format!("{last}.1")))?),
             relu6: true,
         }));
         Ok(Self { stages })

@@ -8,9 +8,9 @@
 //! `FeatureExtractor` returns it.
 
 use candle_core::{Module, Result, Tensor};
-use candle_nn::{Conv2d, Linear, VarBuilder};
+use candle_nn::{Linear, VarBuilder};
 
-use crate::nn::{conv, conv_bn, conv1x1_bias, global_avg_pool, linear_bn};
+use crate::nn::{Conv, Depthwise, conv, conv_bn, conv1x1_bias, depthwise_bn, global_avg_pool, linear_bn};
 
 /// Embedding size of every torchreid OSNet (`feature_dim=512`).
 pub const EMBEDDING_DIM: usize = 512;
@@ -45,7 +45,7 @@ impl OsnetVariant {
 /// Conv + folded BN + ReLU (torchreid `ConvLayer`, `Conv1x1`; with `relu`
 /// false, `Conv1x1Linear`). Weights under `conv`, `bn`.
 struct ConvBn {
-    conv: Conv2d,
+    conv: Conv,
     relu: bool,
 }
 
@@ -64,15 +64,15 @@ impl Module for ConvBn {
 
 /// torchreid `LightConv3x3`: 1×1 linear conv, depthwise 3×3, BN, ReLU.
 struct LightConv3x3 {
-    pointwise: Conv2d,
-    depthwise_bn: Conv2d,
+    pointwise: Conv,
+    depthwise_bn: Depthwise,
 }
 
 impl LightConv3x3 {
     fn load(c: usize, vb: VarBuilder) -> Result<Self> {
         Ok(Self {
             pointwise: conv(c, c, 1, 1, 0, 1, vb.pp("conv1"))?,
-            depthwise_bn: conv_bn(c, c, 3, 1, 1, c, vb.pp("conv2"), vb.pp("bn"))?,
+            depthwise_bn: depthwise_bn(c, 3, 1, 1, vb.pp("conv2"), vb.pp("bn"))?,
         })
     }
 }
@@ -85,8 +85,8 @@ impl Module for LightConv3x3 {
 
 /// torchreid `ChannelGate` (sigmoid, reduction 16), shared by the four streams.
 struct ChannelGate {
-    fc1: Conv2d,
-    fc2: Conv2d,
+    fc1: Conv,
+    fc2: Conv,
 }
 
 impl ChannelGate {

@@ -45,6 +45,12 @@ impl Pose2 {
         Vector3::new(self.x + c * p.x - s * p.y, self.y + s * p.x + c * p.y, p.z)
     }
 
+    /// A planar `base_link` point expressed in `odom`.
+    pub fn base_to_odom_2d(&self, p: &Vector2<f64>) -> Vector2<f64> {
+        let (s, c) = self.theta.sin_cos();
+        Vector2::new(self.x + c * p.x - s * p.y, self.y + s * p.x + c * p.y)
+    }
+
     /// An `odom` point expressed in `base_link` (planar).
     pub fn odom_to_base(&self, p: &Vector2<f64>) -> Vector2<f64> {
         let (s, c) = self.theta.sin_cos();

@@ -1,0 +1,273 @@
+//! Planner scenarios in closed loop: a robot that executes each (v, ω) for
+//! one frame period (5 fps), seeing only what is inside the D455's field of
+//! view, plans every frame until the goal is reached.
+
+use std::f64::consts::PI;
+use std::sync::OnceLock;
+
+use vlnav_local_planner::cloud::{CloudBuilder, CloudParams};
+use vlnav_local_planner::control::{FollowParams, RobotState, StepInput, StepOutput, StepStatus, View};
+use vlnav_local_planner::planner::{Planner, PlannerParams};
+use vlnav_subgoal::geometry::{GoalSpec, Pose2};
+
+const HALF_WIDTH: f64 = 0.335;
+const HALF_FOV: f64 = 43.0 * PI / 180.0;
+const DT: f64 = 0.2;
+const VIEW: View = View { yaw: 0.0, half_fov: HALF_FOV };
+
+fn planner() -> &'static Planner {
+    static P: OnceLock<Planner> = OnceLock::new();
+    P.get_or_init(|| Planner::new(PlannerParams::default()))
+}
+
+/// Obstacle surface points (odom, with height) and no-go zone points.
+#[derive(Default)]
+struct World {
+    obstacles: Vec<[f64; 3]>,
+    no_go: Vec<[f64; 3]>,
+}
+
+impl World {
+    /// A box's vertical faces from the floor to `height`, sampled every 2 cm.
+    fn add_box(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, height: f64) {
+        let step = 0.02;
+        let mut z = 0.0;
+        while z <= height {
+            let mut t = 0.0;
+            while t <= 1.0 {
+                let (x, y) = (x0 + (x1 - x0) * t, y0 + (y1 - y0) * t);
+                self.obstacles.extend([[x, y0, z], [x, y1, z], [x0, y, z], [x1, y, z]]);
+                t += step / (x1 - x0).max(y1 - y0);
+            }
+            z += 0.05;
+        }
+    }
+
+    /// A floor zone reported as virtual points 0.5 m high every 0.1 m.
+    fn add_no_go_zone(&mut self, x0: f64, y0: f64, x1: f64, y1: f64) {
+        let mut x = x0;
+        while x <= x1 + 1e-9 {
+            let mut y = y0;
+            while y <= y1 + 1e-9 {
+                self.no_go.push([x, y, 0.5]);
+                y += 0.1;
+            }
+            x += 0.1;
+        }
+    }
+
+    /// What the camera sees from `pose`, in base_link.
+    fn sense(&self, pose: &Pose2, builder: &mut CloudBuilder) -> vlnav_local_planner::cloud::ObstacleCloud {
+        let to_base = |p: &[f64; 3]| {
+            let b = pose.odom_to_base(&nalgebra::Vector2::new(p[0], p[1]));
+            [b.x, b.y, p[2]]
+        };
+        let visible = |b: &[f64; 3]| b[0] > 0.3 && b[1].atan2(b[0]).abs() < HALF_FOV && b[0].hypot(b[1]) < 6.0;
+        let obstacles: Vec<[f64; 3]> = self.obstacles.iter().map(to_base).filter(visible).collect();
+        let no_go: Vec<[f64; 3]> = self.no_go.iter().map(to_base).filter(visible).collect();
+        builder.from_points(&obstacles, &no_go)
+    }
+}
+
+fn goal_at(x: f64, y: f64, tolerance: f64) -> GoalSpec {
+    GoalSpec { pose: Pose2::new(x, y, 0.0), position_tolerance: tolerance, yaw_tolerance: 0.2, rotation_only: false }
+}
+
+struct Run {
+    poses: Vec<Pose2>,
+    outputs: Vec<StepOutput>,
+}
+
+/// Closed loop until REACHED (or `steps` frames).
+fn drive(world: &World, start: Pose2, goal: GoalSpec, steps: usize) -> Run {
+    let params = FollowParams::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    let mut state = RobotState::default();
+    let mut pose = start;
+    let mut run = Run { poses: vec![pose], outputs: vec![] };
+    for i in 0..steps {
+        let cloud = world.sense(&pose, &mut builder);
+        let out = state.step(
+            planner(),
+            &params,
+            StepInput { stamp: 1000.0 + i as f64 * DT, pose, goal, cloud: &cloud, max_speed: 0.0, view: VIEW },
+        );
+        assert!(out.linear.abs() <= params.max_speed + 1e-9, "speed {}", out.linear);
+        assert!(out.angular.abs() <= params.max_yaw_rate + 1e-9, "yaw rate {}", out.angular);
+        let reached = out.status == StepStatus::Reached;
+        // Unicycle over one frame period.
+        let th = pose.theta + out.angular * DT / 2.0;
+        pose = Pose2::new(pose.x + out.linear * DT * th.cos(), pose.y + out.linear * DT * th.sin(), pose.theta + out.angular * DT);
+        run.outputs.push(out);
+        run.poses.push(pose);
+        if reached {
+            break;
+        }
+    }
+    run
+}
+
+fn distance_to_rect(p: &Pose2, x0: f64, y0: f64, x1: f64, y1: f64) -> f64 {
+    let dx = (x0 - p.x).max(0.0).max(p.x - x1);
+    let dy = (y0 - p.y).max(0.0).max(p.y - y1);
+    dx.hypot(dy)
+}
+
+#[test]
+fn obstacle_dead_ahead_is_passed_around() {
+    let mut world = World::default();
+    world.add_box(2.7, -0.3, 3.3, 0.3, 0.6);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(6.0, 0.0, 0.3), 200);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "did not reach the goal in {} frames", run.outputs.len());
+    let closest = run.poses.iter().map(|p| distance_to_rect(p, 2.7, -0.3, 3.3, 0.3)).fold(f64::INFINITY, f64::min);
+    assert!(closest > HALF_WIDTH + 0.05, "robot centre came within {closest:.3} m of the box");
+    let widest = run.poses.iter().map(|p| p.y.abs()).fold(0.0, f64::max);
+    assert!(widest > 0.6, "never left the straight line (max |y| {widest:.2})");
+    assert!(run.outputs.iter().any(|o| o.status == StepStatus::Moving && o.selection.as_ref().is_some_and(|s| s.path != 3 * 49 + 24 || s.rotation != 4)));
+}
+
+#[test]
+fn red_floor_zone_is_passed_around_never_crossed() {
+    let mut world = World::default();
+    world.add_no_go_zone(2.5, -0.7, 3.5, 0.7);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(6.0, 0.0, 0.3), 200);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "did not reach the goal in {} frames", run.outputs.len());
+    let closest = run.poses.iter().map(|p| distance_to_rect(p, 2.5, -0.7, 3.5, 0.7)).fold(f64::INFINITY, f64::min);
+    // The footprint (half-width 0.335 m) never overlaps the zone.
+    assert!(closest > HALF_WIDTH, "robot centre came within {closest:.3} m of the zone");
+}
+
+#[test]
+fn box_on_one_side_and_zone_on_the_other_are_both_respected() {
+    // A box to the front-left and a no-go zone to the front-right: the way
+    // between them is the only one, at the default weights.
+    let mut world = World::default();
+    world.add_box(2.0, 0.3, 2.4, 1.5, 0.6);
+    world.add_no_go_zone(3.0, -1.2, 3.8, 0.2);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(6.0, 0.0, 0.3), 200);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "did not reach the goal in {} frames", run.outputs.len());
+    let zone = run.poses.iter().map(|p| distance_to_rect(p, 3.0, -1.2, 3.8, 0.2)).fold(f64::INFINITY, f64::min);
+    let obstacle = run.poses.iter().map(|p| distance_to_rect(p, 2.0, 0.3, 2.4, 1.5)).fold(f64::INFINITY, f64::min);
+    assert!(zone > HALF_WIDTH, "footprint entered the zone: centre {zone:.3} m from it");
+    assert!(obstacle > HALF_WIDTH + 0.05, "centre came within {obstacle:.3} m of the box");
+}
+
+#[test]
+fn no_free_path_stops_with_blocked() {
+    // A dead end as wide as the robot plus 0.33 m: side walls and a wall 1 m ahead.
+    let mut world = World::default();
+    world.add_box(1.0, -0.5, 1.1, 0.5, 1.0);
+    world.add_box(-1.0, 0.5, 1.1, 0.6, 1.0);
+    world.add_box(-1.0, -0.6, 1.1, -0.5, 1.0);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(5.0, 0.0, 0.3), 1);
+    let out = &run.outputs[0];
+    assert_eq!(out.status, StepStatus::Blocked);
+    assert_eq!((out.linear, out.angular), (0.0, 0.0));
+    assert!(out.selection.is_none());
+    assert_eq!(out.free_paths, 0);
+    // It tried the smallest scale before giving up.
+    assert!((out.path_scale - 0.75).abs() < 1e-9);
+}
+
+#[test]
+fn open_wall_far_away_leaves_paths_free_and_goes_straight() {
+    // The same wall 4 m out is beyond the goal: it must not block the approach.
+    let mut world = World::default();
+    world.add_box(4.0, -3.0, 4.1, 3.0, 1.0);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(2.5, 0.0, 0.3), 100);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached);
+    assert!(run.poses.iter().all(|p| p.y.abs() < 0.1));
+}
+
+#[test]
+fn goal_behind_rotates_in_place_then_drives() {
+    let world = World::default();
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(-3.0, 0.5, 0.3), 200);
+    let first = &run.outputs[0];
+    assert_eq!(first.status, StepStatus::Rotating);
+    assert_eq!(first.linear, 0.0);
+    assert!(first.angular > 0.0, "the goal is to the left-behind: turn left");
+    assert!((first.angular - 1.57).abs() < 1e-9, "0.8·error clamped to the limit, got {}", first.angular);
+    // Turning in place keeps the position.
+    let rotating: Vec<_> = run.outputs.iter().take_while(|o| o.status == StepStatus::Rotating).collect();
+    assert!(rotating.len() >= 3);
+    assert!(run.poses[rotating.len()].x.abs() < 1e-9);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached);
+}
+
+#[test]
+fn rotation_only_goal_turns_until_within_yaw_tolerance() {
+    let world = World::default();
+    let goal = GoalSpec { pose: Pose2::new(0.0, 0.0, -1.2), position_tolerance: 0.5, yaw_tolerance: 0.2, rotation_only: true };
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal, 50);
+    assert!(run.outputs[0].angular < 0.0);
+    assert_eq!(run.outputs[0].status, StepStatus::Rotating);
+    let last = run.outputs.last().unwrap();
+    assert_eq!(last.status, StepStatus::Reached);
+    assert!(last.heading_error.abs() < 0.2);
+    assert!(run.poses.iter().all(|p| p.x == 0.0 && p.y == 0.0));
+}
+
+#[test]
+fn stuck_robot_reports_no_progress_after_five_seconds_of_sensor_time() {
+    let params = FollowParams::default();
+    let mut state = RobotState::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    let cloud = builder.from_points(&[], &[]);
+    let goal = goal_at(5.0, 0.0, 0.3);
+    let pose = Pose2::new(0.0, 0.0, 0.0);
+    let mut statuses = vec![];
+    // Wheels spinning in mud: the pose never changes; frames at 10 Hz.
+    for i in 0..80 {
+        let out = state.step(planner(), &params, StepInput { stamp: 50.0 + i as f64 * 0.1, pose, goal, cloud: &cloud, max_speed: 0.0, view: VIEW });
+        statuses.push(out.status);
+    }
+    let first = statuses.iter().position(|s| *s == StepStatus::NoProgress).expect("no NO_PROGRESS reported");
+    assert_eq!(first, 50, "5.0 s after the first frame");
+    assert!(statuses[..first].iter().all(|s| *s == StepStatus::Moving));
+    // Reported once, then the window restarts.
+    assert_eq!(statuses.iter().filter(|s| **s == StepStatus::NoProgress).count(), 1);
+}
+
+#[test]
+fn speed_ramps_with_frame_stamps() {
+    let params = FollowParams::default();
+    let mut state = RobotState::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    let cloud = builder.from_points(&[], &[]);
+    let goal = goal_at(8.0, 0.0, 0.3);
+    let pose = Pose2::new(0.0, 0.0, 0.0);
+    let speeds: Vec<f64> = (0..8)
+        .map(|i| state.step(planner(), &params, StepInput { stamp: i as f64 * 0.25, pose, goal, cloud: &cloud, max_speed: 0.6, view: VIEW }).linear)
+        .collect();
+    // First frame: the nominal 0.2 s period; then 0.25 s per frame at 1 m/s², capped at 0.6.
+    let expected = [0.2, 0.45, 0.6, 0.6, 0.6, 0.6, 0.6, 0.6];
+    for (s, e) in speeds.iter().zip(expected) {
+        assert!((s - e).abs() < 1e-9, "{speeds:?}");
+    }
+}
+
+#[test]
+fn obstacles_out_of_view_are_remembered_for_a_while() {
+    let params = FollowParams::default();
+    let mut state = RobotState::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    let goal = goal_at(5.0, 0.0, 0.3);
+    // A post 1.5 m ahead, then the robot turns 90° left: the camera no longer sees it.
+    let seen = builder.from_points(&[[1.5, 0.0, 0.3], [1.5, 0.0, 0.5]], &[]);
+    let mut step = |stamp: f64, theta: f64, cloud: &vlnav_local_planner::cloud::ObstacleCloud| {
+        let input = StepInput { stamp, pose: Pose2::new(0.0, 0.0, theta), goal, cloud, max_speed: 0.0, view: VIEW };
+        state.step(planner(), &params, input);
+        state.cloud.cells.len()
+    };
+    assert_eq!(step(0.0, 0.0, &seen), 1);
+    let empty = builder.from_points(&[], &[]);
+    // Turned away: the post is merged from memory.
+    assert_eq!(step(0.2, 1.5, &empty), 1);
+    assert_eq!(step(2.9, 1.5, &empty), 1);
+    // Expired after 3 s of sensor time.
+    assert_eq!(step(3.1, 1.5, &empty), 0);
+    // Back in view and gone: the current frame wins at once.
+    assert_eq!(step(3.2, 0.0, &seen), 1);
+    assert_eq!(step(3.4, 0.0, &empty), 0);
+}
