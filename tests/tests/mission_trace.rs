@@ -49,22 +49,24 @@ async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
     }
     let by_id: HashMap<&str, &Span> = spans.iter().map(|s| (s.span_id.as_str(), s)).collect();
     let parent_name = |s: &Span| s.parent_id.as_deref().and_then(|p| by_id.get(p)).map(|p| p.name.as_str());
-    let named = |n: &str| spans.iter().filter(move |s| s.name == n);
+    fn named<'a>(spans: &'a [Span], n: &'a str) -> impl Iterator<Item = &'a Span> + 'a {
+        spans.iter().filter(move |s| s.name == n)
+    }
 
     for stage in ["mission", "plan", "step", "control-cycle", "detect", "segment", "subgoal", "local-plan", "edge-forward"] {
-        assert!(named(stage).count() > 0, "no `{stage}` span in the mission's trace ({} spans)", spans.len());
+        assert!(named(&spans, stage).count() > 0, "no `{stage}` span in the mission's trace ({} spans)", spans.len());
     }
     assert!(spans.iter().all(|s| s.trace_id == mission.trace_id));
-    let mission_span = named("mission").next().unwrap();
+    let mission_span = named(&spans, "mission").next().unwrap();
     // The planner's server span hangs off the mission span (the planner call is made inside it).
-    assert!(named("plan").all(|s| parent_name(s) == Some("mission")), "plan spans are children of the mission");
-    assert!(named("step").all(|s| s.parent_id.as_deref() == Some(mission_span.span_id.as_str())));
-    assert!(named("control-cycle").all(|s| parent_name(s) == Some("step")));
+    assert!(named(&spans, "plan").all(|s| parent_name(s) == Some("mission")), "plan spans are children of the mission");
+    assert!(named(&spans, "step").all(|s| s.parent_id.as_deref() == Some(mission_span.span_id.as_str())));
+    assert!(named(&spans, "control-cycle").all(|s| parent_name(s) == Some("step")));
     for stage in ["detect", "segment", "local-plan", "edge-forward"] {
-        assert!(named(stage).all(|s| parent_name(s) == Some("control-cycle")), "`{stage}` spans are children of a control cycle");
+        assert!(named(&spans, stage).all(|s| parent_name(s) == Some("control-cycle")), "`{stage}` spans are children of a control cycle");
     }
     // MOVE goals are computed at step start, FIND goals in the cycle.
-    assert!(named("subgoal").all(|s| matches!(parent_name(s), Some("control-cycle" | "step"))));
+    assert!(named(&spans, "subgoal").all(|s| matches!(parent_name(s), Some("control-cycle" | "step"))));
     // Services report who they are.
     let services: Vec<&str> = spans.iter().filter_map(|s| match s.attributes.get("rpc.service") {
         Some(vlnav_traces::AttrValue::Str(v)) => Some(v.as_str()),

@@ -1,0 +1,106 @@
+//! Voice, end to end through the gateway: espeak-ng speaks five instructions
+//! (the paper's two worked examples among them), SubmitMission sends the WAV
+//! as `audio`, ingress transcribes it with Whisper tiny.en, and the planner
+//! must produce the same plan as for the typed instruction. The transcript
+//! appears in the mission's events.
+
+use std::process::Command;
+use std::time::Duration;
+
+use vlnav_e2e::{CASE_2, TestStack};
+use vlnav_proto::v1::{
+    ActionStep, Audio, AudioFormat, SubmitMissionRequest, mission_event::Kind, submit_mission_request::Instruction,
+    submit_mission_response::Outcome,
+};
+
+const CASE_1: &str = "Buddy go to the statue, take a right turn and move a little ahead, then find the visitor chair \
+to reach close to it, and on the right you may see a bicycle.";
+const SPOKEN: [&str; 5] = [
+    CASE_2,
+    CASE_1,
+    "Move five meters forward, take a right turn, and stop near the elephant statue.",
+    "Hi Buddy, please deliver this file to Mister David and report back to me.",
+    "Turn around and go to the chair.",
+];
+
+fn speak(text: &str) -> Vec<u8> {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("speech.wav");
+    let status = Command::new("espeak-ng")
+        .args(["-v", "en-us", "-s", "150", "-w"])
+        .arg(&path)
+        .arg(text)
+        .status()
+        .unwrap_or_else(|e| panic!("cannot run espeak-ng ({e}): install the Debian package espeak-ng (.ci/apt/ingress.txt)"));
+    assert!(status.success());
+    std::fs::read(path).unwrap()
+}
+
+fn words(s: &str) -> Vec<String> {
+    s.to_lowercase()
+        .replace("mr.", "mister")
+        .split(|c: char| !c.is_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .map(str::to_string)
+        .collect()
+}
+
+/// Word error rate: word-level edit distance over the reference length.
+fn wer(reference: &str, hypothesis: &str) -> f64 {
+    let (r, h) = (words(reference), words(hypothesis));
+    let mut d: Vec<usize> = (0..=h.len()).collect();
+    for i in 1..=r.len() {
+        let mut prev = d[0];
+        d[0] = i;
+        for j in 1..=h.len() {
+            let cur = d[j];
+            d[j] = if r[i - 1] == h[j - 1] { prev } else { 1 + prev.min(d[j]).min(d[j - 1]) };
+            prev = cur;
+        }
+    }
+    d[h.len()] as f64 / r.len().max(1) as f64
+}
+
+/// What must agree between the typed and the spoken plan.
+fn essence(steps: &[ActionStep]) -> Vec<(i32, i32, i64, i64, String)> {
+    steps
+        .iter()
+        .map(|s| (s.action, s.class_id, (s.f_dist * 10.0).round() as i64, (s.yaw * 100.0).round() as i64, s.person.clone()))
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn spoken_instructions_plan_like_typed_ones_through_the_gateway() {
+    let t = TestStack::start(|a| a.no_robot = true).await;
+    let mut missions = t.missions().await;
+    let mut report = String::from("\nspoken instruction → transcript (WER):\n");
+    let mut total = 0.0;
+    for text in SPOKEN {
+        let typed = missions
+            .submit_mission(SubmitMissionRequest { robot_id: String::new(), instruction: Some(Instruction::Text(text.into())), dry_run: true })
+            .await
+            .unwrap()
+            .into_inner();
+        let Some(Outcome::Plan(expected)) = typed.outcome else { panic!("typed '{text}' did not plan: {:?}", typed.outcome) };
+        let audio = Audio { format: AudioFormat::Wav as i32, sample_rate: 0, data: speak(text) };
+        let spoken = missions
+            .submit_mission(SubmitMissionRequest { robot_id: String::new(), instruction: Some(Instruction::Audio(audio)), dry_run: true })
+            .await
+            .unwrap()
+            .into_inner();
+        let w = wer(text, &spoken.transcript);
+        total += w;
+        report += &format!("  {w:.2}  {text}\n        → {}\n", spoken.transcript);
+        assert!(w <= 0.35, "transcript too far from '{text}': '{}' (WER {w:.2})", spoken.transcript);
+        let Some(Outcome::Plan(got)) = spoken.outcome else { panic!("spoken '{text}' did not plan: {:?}", spoken.outcome) };
+        assert_eq!(essence(&got.steps), essence(&expected.steps), "spoken and typed plans differ for '{text}'\n{}\n{}", spoken.plan_json, typed.plan_json);
+        let (events, _) = t.follow(&spoken.mission_id, Duration::from_secs(30)).await;
+        assert!(
+            events.iter().any(|e| matches!(&e.kind, Some(Kind::Transcribed(x)) if x.transcript == spoken.transcript)),
+            "the transcript is in the mission's events"
+        );
+    }
+    report += &format!("  mean WER {:.3}\n", total / SPOKEN.len() as f64);
+    println!("{report}");
+    t.stack.shutdown().await.unwrap();
+}
