@@ -47,6 +47,18 @@ impl Gateway {
         Ok(Self { fleet: Fleet::new(hub, pipeline, opts.executor.clone()) })
     }
 
+    /// Ends every robot actor and waits (up to 5 s) until nothing else holds
+    /// the gateway's state, so its mission store is closed when this returns.
+    pub async fn close(self) {
+        self.fleet.close();
+        for _ in 0..250 {
+            if Arc::strong_count(&self.fleet) <= 1 {
+                break;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+        }
+    }
+
     pub fn fleet(&self) -> &Arc<Fleet> {
         &self.fleet
     }

@@ -148,6 +148,11 @@ impl Fleet {
         out
     }
 
+    /// Forgets every robot: their actors end once their streams are gone.
+    pub fn close(&self) {
+        self.lock().clear();
+    }
+
     pub fn hub(&self) -> &Arc<Hub> {
         &self.hub
     }

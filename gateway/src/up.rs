@@ -123,6 +123,7 @@ impl Stack {
         while let Some(r) = self.tasks.join_next().await {
             r??;
         }
+        self.gateway.close().await;
         Ok(())
     }
 
