@@ -251,3 +251,34 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
         trials_run: n_specs,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        eval: EvalArgs,
+    }
+
+    #[test]
+    fn flags_parse_into_eval_args() {
+        let cli = Cli::try_parse_from(["vlnav-eval", "--mode", "visual,hybrid", "--scenario", "lab,corridor", "--trials", "3"])
+            .unwrap();
+        assert_eq!(cli.eval.modes, vec![Mode::Visual, Mode::Hybrid]);
+        assert_eq!(cli.eval.scenarios, vec!["lab".to_string(), "corridor".to_string()]);
+        assert_eq!(cli.eval.trials, Some(3));
+        assert_eq!(cli.eval.frame_rate, 5.0);
+        let e = Cli::try_parse_from(["vlnav-eval", "--mode", "sideways"]).err().unwrap().to_string();
+        assert!(e.contains("geometric"), "{e}");
+    }
+
+    #[test]
+    fn the_default_suite_is_found_from_any_directory() {
+        let p = resolve_suite(Path::new(DEFAULT_SUITE));
+        assert!(p.is_file(), "{}", p.display());
+        assert_eq!(resolve_suite(Path::new("elsewhere.toml")), PathBuf::from("elsewhere.toml"));
+    }
+}

@@ -495,6 +495,9 @@ async fn run_mission(
             }
         }
     }
+    if watched.outcome.is_none() {
+        watched.reason = format!("the event stream of mission {mission_id} ended before it finished");
+    }
     shutdown.cancel();
     // Frames already queued by the agent that still belong to the mission.
     let _ = agent.await;

@@ -204,3 +204,17 @@ async fn a_bad_scenario_or_option_is_an_error_that_says_what() {
     let opts = EdgeOptions { lockstep: true, driver: vlnav_edge_agent::DriverKind::Ros1, ..EdgeOptions::default() };
     assert!(vlnav_edge_agent::run(opts, CancellationToken::new()).await.unwrap_err().to_string().contains("--lockstep"));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn lockstep_paces_frames_at_real_time_while_the_gateway_is_idle() {
+    let token = CancellationToken::new();
+    let script: common::Script = Arc::new(|_, _, stamp| Reply::Command { stamp, linear: 0.0, angular: 0.0, idle: true });
+    let (uri, _log) = start(script, token.clone()).await;
+    let began = std::time::Instant::now();
+    let records = run_episode(sim_opts(&uri, true, 1.0), CancellationToken::new()).await.unwrap();
+    token.cancel();
+    assert_eq!(records.len(), 10);
+    assert!(records.iter().all(|r| r.idle));
+    // Ten idle frames of 0.1 s each take at least about a second of wall time.
+    assert!(began.elapsed() >= std::time::Duration::from_millis(950), "{:?}", began.elapsed());
+}

@@ -46,7 +46,7 @@ fn camera(frame: &v1::RgbdFrame) -> Result<Camera, Status> {
     if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0 && k.cx.is_finite() && k.cy.is_finite()) {
         return Err(invalid("frame.camera.intrinsics: fx and fy must be positive, cx and cy finite"));
     }
-    let m = c.mount.clone().unwrap_or_default();
+    let m = c.mount.unwrap_or_default();
     let t = m.translation.unwrap_or_default();
     if ![t.x, t.y, t.z, m.roll, m.pitch, m.yaw].iter().all(|v| v.is_finite()) {
         return Err(invalid("frame.camera.mount: translation and angles must be finite"));
