@@ -1,0 +1,37 @@
+//! `vlnav eval` in small: one trial of two scenarios through the real
+//! services (all-in-one stack, lockstep simulated robots over gRPC). Checks
+//! that the metrics are computed and the report written — not that they are good.
+
+use vlnav_e2e::TestStack;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_small_evaluation_runs_through_the_real_services() {
+    let t = TestStack::start(|a| a.no_robot = true).await;
+    let out = tempfile::tempdir().unwrap();
+    let args = vlnav_eval::EvalArgs {
+        suite: std::path::PathBuf::from(vlnav_eval::DEFAULT_SUITE),
+        trials: Some(1),
+        seed: 7,
+        scenarios: vec!["corridor".into(), "lab".into()],
+        modes: vec![vlnav_eval::metrics::Mode::Hybrid],
+        out: out.path().to_path_buf(),
+        jobs: 2,
+        width: None,
+        height: None,
+        frame_rate: 5.0,
+        plots: 1,
+        stall_timeout_s: 120.0,
+        no_progress: true,
+    };
+    let report = vlnav_eval::run_eval(args, t.uri()).await.expect("the evaluation runs");
+    assert_eq!(report.records.len(), 2, "one trial per scenario");
+    for r in &report.records {
+        assert!(r.frames > 0, "{}: the robot ran", r.scenario);
+        assert!(r.duration_s > 0.0 && r.path_length_m >= 0.0 && r.drift_m() >= 0.0 && r.final_error_m().is_finite());
+    }
+    for f in ["report.md", "summary.csv", "trials.csv"] {
+        let text = std::fs::read_to_string(out.path().join(f)).unwrap();
+        assert!(text.contains("corridor") || text.contains("Corridor"), "{f} lists the scenario");
+    }
+    t.stack.shutdown().await.unwrap();
+}
