@@ -13,6 +13,9 @@ photos="$models/photos"
 mkdir -p "$photos" "$models/whisper"
 work="$models/.work/test-photos"
 
+# shellcheck source=../lib/crate-source.sh
+. "$VLNAV_ROOT/deploy/lib/crate-source.sh"
+
 have_all() {
   local f
   for f in "$@"; do [ -s "$f" ] || return 1; done
@@ -20,30 +23,7 @@ have_all() {
 
 # --- candle-examples 0.11.1: bike.jpg and melfilters.bytes -------------------
 if ! have_all "$photos/bike.jpg" "$models/whisper/melfilters.bytes"; then
-  proj="$models/.cargo-fetch/candle-examples"
-  mkdir -p "$proj/src"
-  cat >"$proj/Cargo.toml" <<'TOML'
-[package]
-name = "vlnav-fetch-candle-examples"
-version = "0.0.0"
-edition = "2021"
-publish = false
-
-[workspace]
-
-[dependencies]
-candle-examples = "=0.11.1"
-TOML
-  echo 'fn main() {}' >"$proj/src/main.rs"
-  (cd "$proj" && cargo fetch --quiet)
-  src=""
-  for d in "${CARGO_HOME:-$HOME/.cargo}"/registry/src/*/candle-examples-0.11.1; do
-    [ -d "$d" ] && src="$d" && break
-  done
-  if [ -z "$src" ]; then
-    echo "candle-examples 0.11.1 sources not found under ${CARGO_HOME:-$HOME/.cargo}/registry/src" >&2
-    exit 1
-  fi
+  src=$(crate_source candle-examples 0.11.1) || exit 1
   cp "$src/examples/yolo-v8/assets/bike.jpg" "$photos/bike.jpg.tmp" && mv "$photos/bike.jpg.tmp" "$photos/bike.jpg"
   cp "$src/examples/whisper/melfilters.bytes" "$models/whisper/melfilters.bytes.tmp" \
     && mv "$models/whisper/melfilters.bytes.tmp" "$models/whisper/melfilters.bytes"

@@ -18,27 +18,9 @@ out="$models/whisper"
 mkdir -p "$out"
 
 if [ ! -s "$out/melfilters.bytes" ]; then
-  proj="$models/.cargo-fetch/candle-examples"
-  mkdir -p "$proj/src"
-  cat >"$proj/Cargo.toml" <<'TOML'
-[package]
-name = "vlnav-fetch-candle-examples"
-version = "0.0.0"
-edition = "2021"
-publish = false
-
-[workspace]
-
-[dependencies]
-candle-examples = "=0.11.1"
-TOML
-  echo 'fn main() {}' >"$proj/src/main.rs"
-  (cd "$proj" && cargo fetch --quiet)
-  src=""
-  for d in "${CARGO_HOME:-$HOME/.cargo}"/registry/src/*/candle-examples-0.11.1; do
-    [ -d "$d" ] && src="$d" && break
-  done
-  [ -n "$src" ] || { echo "whisper: candle-examples 0.11.1 sources not found" >&2; exit 1; }
+  # shellcheck source=../lib/crate-source.sh
+  . "$root/deploy/lib/crate-source.sh"
+  src=$(crate_source candle-examples 0.11.1) || exit 1
   cp "$src/examples/whisper/melfilters.bytes" "$out/melfilters.bytes.part"
   mv "$out/melfilters.bytes.part" "$out/melfilters.bytes"
 fi

@@ -93,7 +93,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 token.cancel();
             });
             let result = stack.wait().await;
-            telemetry.flush();
+            drop(telemetry);
             receiver.cancel();
             result
         }
@@ -136,6 +136,8 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 }
             }
             stack.shutdown().await?;
+            // Exporters flush on drop: before their receiver goes away.
+            drop(telemetry);
             receiver.cancel();
             let mission = mission?;
             if mission.state != vlnav_proto::v1::MissionState::Succeeded as i32 {

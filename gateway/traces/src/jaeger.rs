@@ -183,6 +183,10 @@ pub async fn fetch_trace(base_url: &str, trace_id: &str) -> Result<Vec<Span>, Ja
         return Err(JaegerError::BadUrl { url: base_url.to_string(), reason: "expected http://host:port".into() });
     }
     let url = format!("{base}/api/traces/{trace_id}");
+    // reqwest is built with rustls where other crates of the binary ask for
+    // it; a TLS-capable client then needs the process's crypto provider.
+    // Installing it is idempotent (an already installed one is kept).
+    let _ = rustls::crypto::ring::default_provider().install_default();
     let client = reqwest::Client::builder()
         .timeout(Duration::from_secs(30))
         .build()

@@ -805,6 +805,25 @@ fn non_latin_share(text: &str) -> f64 {
 
 /// The rule-based planner.
 pub fn parse(text: &str, grounder: &Grounder) -> Parsed {
+    let parsed = parse_unchecked(text, grounder);
+    // The parser never hands on a plan the validator would refuse: whatever
+    // slipped through the layers (a name made of junk, a step of nothing)
+    // becomes a question.
+    static VALIDATOR: std::sync::OnceLock<crate::validate::Validator> = std::sync::OnceLock::new();
+    if let Outcome::Plan(plan) = &parsed.outcome {
+        if let Err(errors) = VALIDATOR.get_or_init(crate::validate::Validator::new).validate_plan(plan) {
+            return Parsed::ask(
+                "I could not make a safe plan from that. Could you say it more simply?",
+                errors.join("; "),
+                vec![],
+                parsed.notes,
+            );
+        }
+    }
+    parsed
+}
+
+fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
     let mut notes = Vec::new();
     if non_latin_share(text) > 0.3 {
         return Parsed::ask(
@@ -845,6 +864,15 @@ pub fn parse(text: &str, grounder: &Grounder) -> Parsed {
                     return Parsed::ask(
                         format!("That is {dist} m. I can drive at most {MAX_SPLIT_M} m in one instruction; how far should I go?"),
                         format!("distance {dist} m in \"{desc}\" is too far"),
+                        vec![],
+                        notes,
+                    );
+                }
+                if dist.abs() < 0.1 && yaw.abs() < 0.01 {
+                    // Under 10 cm and no turn: nothing the robot can execute.
+                    return Parsed::ask(
+                        format!("\"{desc}\" is less than 10 cm. How far should I move?"),
+                        format!("\"{desc}\" neither turns nor drives"),
                         vec![],
                         notes,
                     );
