@@ -1,6 +1,7 @@
 //! `vlnav eval` in small: one trial of two scenarios through the real
 //! services (all-in-one stack, lockstep simulated robots over gRPC). Checks
-//! that the metrics are computed and the report written — not that they are good.
+//! that the metrics are computed and the report written — not that they are
+//! good — and that the same seed gives the same table.
 
 use vlnav_e2e::TestStack;
 
@@ -8,6 +9,7 @@ use vlnav_e2e::TestStack;
 async fn a_small_evaluation_runs_through_the_real_services() {
     let t = TestStack::start(|a| a.no_robot = true).await;
     let out = tempfile::tempdir().unwrap();
+    let again = tempfile::tempdir().unwrap();
     let args = vlnav_eval::EvalArgs {
         suite: std::path::PathBuf::from(vlnav_eval::DEFAULT_SUITE),
         trials: Some(1),
@@ -23,6 +25,7 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         stall_timeout_s: 120.0,
         no_progress: true,
     };
+    let rerun = vlnav_eval::EvalArgs { out: again.path().to_path_buf(), jobs: 1, ..args.clone() };
     let report = vlnav_eval::run_eval(args, t.uri()).await.expect("the evaluation runs");
     assert_eq!(report.records.len(), 2, "one trial per scenario");
     for r in &report.records {
@@ -33,5 +36,10 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         let text = std::fs::read_to_string(out.path().join(f)).unwrap();
         assert!(text.contains("corridor") || text.contains("Corridor"), "{f} lists the scenario");
     }
+    // Determinism: the same seed, run again (one trial at a time this
+    // time), gives the same per-trial records and the same table.
+    let second = vlnav_eval::run_eval(rerun, t.uri()).await.expect("the evaluation runs again");
+    assert_eq!(second.trials_csv, report.trials_csv, "the same seed gives the same trials");
+    assert_eq!(second.markdown, report.markdown, "the same seed gives the same table");
     t.stack.shutdown().await.unwrap();
 }

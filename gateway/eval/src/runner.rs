@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use tokio::sync::mpsc;
-use vlnav_edge_agent::{DriverKind, EdgeOptions, EstopSwitch, Hooks, StepRecord};
+use vlnav_edge_agent::{DriverKind, EdgeOptions, Hooks, IdleGate, StepRecord};
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::mission_service_client::MissionServiceClient;
 use vlnav_runtime::CancellationToken;
@@ -367,7 +367,10 @@ async fn run_mission(
     };
     let (tx, mut rx) = mpsc::unbounded_channel();
     let shutdown = CancellationToken::new();
-    let hooks = Hooks { observer: Some(tx), estop: EstopSwitch::default() };
+    // The robot waits after its first (idle) frame until the mission is in
+    // place, so every run of a seed starts its mission on the same frame.
+    let gate = IdleGate::closed();
+    let hooks = Hooks { observer: Some(tx), idle_gate: Some(gate.clone()), ..Hooks::default() };
     let mut agent = tokio::spawn(vlnav_edge_agent::run_with(opts, shutdown.clone(), hooks));
     // Stops the agent however this function returns.
     let _stop = shutdown.clone().drop_guard();
@@ -401,6 +404,7 @@ async fn run_mission(
         .await
         .map_err(|s| anyhow::anyhow!("SubmitMission({text:?}): {:?}: {}", s.code(), s.message()))?
         .into_inner();
+    gate.open();
     let mut watched = Watched::default();
     if let Some(pb::submit_mission_response::Outcome::Clarification(c)) = &submitted.outcome {
         watched.outcome = Some(Outcome::Clarification);
@@ -497,6 +501,23 @@ async fn run_mission(
     }
     if watched.outcome.is_none() {
         watched.reason = format!("the event stream of mission {mission_id} ended before it finished");
+    }
+    // The frame that finished the mission is the agent's once its answer
+    // arrives: wait for it, so no run loses its last frame to the shutdown.
+    if finished_stamp.is_finite() && !agent_done && after_submit.last().is_none_or(|s| s.stamp < finished_stamp - 1e-9) {
+        let deadline = tokio::time::Instant::now() + stall;
+        loop {
+            match tokio::time::timeout_at(deadline, rx.recv()).await {
+                Ok(Some(s)) => {
+                    let last = s.stamp >= finished_stamp - 1e-9;
+                    after_submit.push(s);
+                    if last {
+                        break;
+                    }
+                }
+                Ok(None) | Err(_) => break,
+            }
+        }
     }
     shutdown.cancel();
     // Frames already queued by the agent that still belong to the mission.

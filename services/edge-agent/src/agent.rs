@@ -357,9 +357,15 @@ async fn lockstep_session(
         observe(hooks, robot, out, verdict, gov, answer.idle, answer.mission_id.clone());
         robot.step(out);
         if answer.idle {
-            tokio::select! {
-                _ = shutdown.cancelled() => return SessionEnd::Finished,
-                _ = tokio::time::sleep(Duration::from_secs_f64(robot.period)) => {}
+            match &hooks.idle_gate {
+                Some(gate) if !gate.is_open() => tokio::select! {
+                    _ = shutdown.cancelled() => return SessionEnd::Finished,
+                    _ = gate.opened() => {}
+                },
+                _ => tokio::select! {
+                    _ = shutdown.cancelled() => return SessionEnd::Finished,
+                    _ = tokio::time::sleep(Duration::from_secs_f64(robot.period)) => {}
+                },
             }
         }
     }

@@ -9,7 +9,9 @@
 //!
 //! For evaluation, [`run_with`] takes [`Hooks`]: an observer channel that
 //! receives one [`StepRecord`] per frame (with the simulator's ground truth),
-//! and an [`EstopSwitch`]; [`run_episode`] collects the records of a run.
+//! an [`EstopSwitch`], and an [`IdleGate`] that holds a lockstep robot
+//! between two frames while a mission is submitted; [`run_episode`] collects
+//! the records of a run.
 
 pub mod agent;
 pub mod convert;
@@ -19,7 +21,7 @@ pub mod safety;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use vlnav_runtime::CancellationToken;
 
 pub use safety::{Twist, Verdict};
@@ -227,11 +229,43 @@ pub struct StepRecord {
     pub mission_id: String,
 }
 
-/// Optional attachments of a run: an observer of every step and an e-stop.
+/// Optional attachments of a run: an observer of every step, an e-stop and
+/// an idle gate.
 #[derive(Clone, Debug, Default)]
 pub struct Hooks {
     pub observer: Option<mpsc::UnboundedSender<StepRecord>>,
     pub estop: EstopSwitch,
+    /// Lockstep only: after a frame the gateway answered as idle, the next
+    /// frame waits until the gate is open (instead of one frame period of
+    /// wall time). A harness closes it, submits a mission, and opens it, so
+    /// the mission starts on the same frame in every run of the same seed.
+    pub idle_gate: Option<IdleGate>,
+}
+
+/// A gate a lockstep robot waits at between an idle frame and the next one.
+#[derive(Clone, Debug)]
+pub struct IdleGate(Arc<watch::Sender<bool>>);
+
+impl IdleGate {
+    /// A gate that starts closed.
+    pub fn closed() -> Self {
+        Self(Arc::new(watch::channel(false).0))
+    }
+    pub fn open(&self) {
+        self.0.send_replace(true);
+    }
+    pub fn close(&self) {
+        self.0.send_replace(false);
+    }
+    pub fn is_open(&self) -> bool {
+        *self.0.borrow()
+    }
+    /// Returns once the gate is open.
+    pub async fn opened(&self) {
+        let mut rx = self.0.subscribe();
+        // The sender lives in `self`, so the channel cannot close while we wait.
+        let _ = rx.wait_for(|open| *open).await;
+    }
 }
 
 /// Runs the agent until `shutdown` is cancelled (or, sim, `--max-sim-time-s` is reached).
@@ -256,7 +290,7 @@ pub async fn run_with(opts: EdgeOptions, shutdown: CancellationToken, hooks: Hoo
 /// cancelled or `max_sim_time_s` is reached.
 pub async fn run_episode(opts: EdgeOptions, shutdown: CancellationToken) -> anyhow::Result<Vec<StepRecord>> {
     let (tx, mut rx) = mpsc::unbounded_channel();
-    let hooks = Hooks { observer: Some(tx), estop: EstopSwitch::default() };
+    let hooks = Hooks { observer: Some(tx), ..Hooks::default() };
     let result = run_with(opts, shutdown, hooks).await;
     let mut records = Vec::new();
     while let Ok(r) = rx.try_recv() {

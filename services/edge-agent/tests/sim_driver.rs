@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use common::{Reply, answer_all, start};
 use tokio::sync::mpsc;
-use vlnav_edge_agent::{EdgeOptions, EstopSwitch, Hooks, StepRecord, Twist, Verdict, run_episode, run_with};
+use vlnav_edge_agent::{EdgeOptions, EstopSwitch, Hooks, IdleGate, StepRecord, Twist, Verdict, run_episode, run_with};
 use vlnav_runtime::CancellationToken;
 
 fn sim_opts(gateway: &str, lockstep: bool, seconds: f64) -> EdgeOptions {
@@ -154,7 +154,7 @@ async fn estop_holds_zero_until_released_and_is_reported() {
     let estop = EstopSwitch::default();
     estop.engage();
     let (tx, mut rx) = mpsc::unbounded_channel();
-    let hooks = Hooks { observer: Some(tx), estop: estop.clone() };
+    let hooks = Hooks { observer: Some(tx), estop: estop.clone(), ..Hooks::default() };
     let agent = tokio::spawn(run_with(sim_opts(&uri, true, 3.0), CancellationToken::new(), hooks));
     let mut records = Vec::new();
     while let Some(r) = rx.recv().await {
@@ -171,6 +171,36 @@ async fn estop_holds_zero_until_released_and_is_reported() {
     let statuses = log.lock().unwrap().statuses.clone();
     assert!(statuses.first().is_some_and(|s| s.estop), "{statuses:?}");
     assert!(statuses.iter().any(|s| !s.estop && !s.deadman_tripped));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_idle_gate_holds_a_lockstep_robot_between_frames_until_opened() {
+    let token = CancellationToken::new();
+    // Idle answers: the gateway has no mission for this robot.
+    let script: common::Script = Arc::new(|_, _, stamp| Reply::Command { stamp, linear: 0.0, angular: 0.0, idle: true });
+    let (uri, log) = start(script, token.clone()).await;
+    let gate = IdleGate::closed();
+    let (tx, mut rx) = mpsc::unbounded_channel();
+    let hooks = Hooks { observer: Some(tx), idle_gate: Some(gate.clone()), ..Hooks::default() };
+    let agent = tokio::spawn(run_with(sim_opts(&uri, true, 1.0), CancellationToken::new(), hooks));
+    let first = rx.recv().await.expect("the first frame is answered");
+    assert_eq!(first.seq, 0);
+    // Closed: no second frame goes out, however long the harness takes.
+    tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+    assert!(rx.try_recv().is_err(), "the robot waited at the gate");
+    assert_eq!(log.lock().unwrap().frames.len(), 1);
+    // Open: the next frame follows at once, at the next sensor time.
+    gate.open();
+    let second = rx.recv().await.expect("the next frame after opening");
+    assert_eq!(second.seq, 1);
+    assert!((second.stamp - first.stamp - 0.1).abs() < 1e-9, "{} then {}", first.stamp, second.stamp);
+    let mut rest = 0;
+    while rx.recv().await.is_some() {
+        rest += 1;
+    }
+    agent.await.unwrap().unwrap();
+    token.cancel();
+    assert_eq!(rest, 8, "the run went on to its 1 s of sensor time");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
