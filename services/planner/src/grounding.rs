@@ -16,6 +16,22 @@ use crate::minilm::{EmbedError, MiniLm, cosine};
 /// "window" 0.61 to "screen", "kitchen" 0.61 to "oven"). 0.65 sits between.
 pub const DEFAULT_THRESHOLD: f32 = 0.65;
 
+/// Similarity the head noun (last word) of a multi-word phrase needs, on its
+/// own, to the class the whole phrase grounds to semantically. A phrase is
+/// about its head noun: "couch cushion" (cushion ~ sofa 0.63) is about a
+/// couch, but "visitor care" (care ~ person < 0.4) is not about a person
+/// just because "visitor" is — a mishearing of "visitor chair" must ask,
+/// not send the robot to a person.
+pub const HEAD_THRESHOLD: f32 = 0.45;
+
+/// Head nouns that say a thing depicts what the other words name:
+/// "elephant statue" looks like an elephant.
+pub const DEPICTIONS: &[&str] = &[
+    "statue", "statues", "sculpture", "sculptures", "figure", "figures", "figurine", "figurines", "model", "models",
+    "picture", "pictures", "painting", "paintings", "poster", "posters", "photo", "photos", "image", "images", "drawing",
+    "drawings", "mural", "cutout", "cutouts", "replica", "replicas", "toy", "toys", "doll", "dolls",
+];
+
 /// Phrases (lower case) that name a COCO class without being its name.
 pub const SYNONYMS: &[(&str, &str)] = &[
     // people
@@ -130,12 +146,30 @@ impl Grounder {
             return Ok(g);
         }
         match self.semantic(&phrase) {
-            Some((best, score, _)) if score >= self.threshold => {
+            Some((best, score, _)) if score >= self.threshold && self.head_agrees(&phrase, best.class_id) => {
                 Ok(Grounding { class_id: best.class_id, via: Via::Semantic { matched: best.phrase.clone(), score } })
             }
             Some((_, _, suggestions)) => Err(Ungrounded { phrase, suggestions }),
             None => Err(Ungrounded { phrase, suggestions: Vec::new() }),
         }
+    }
+
+    /// Whether the head noun of `phrase` is about `class_id` too: a single
+    /// word, a head noun that names the class itself, or one whose own
+    /// similarity to the class reaches [`HEAD_THRESHOLD`].
+    fn head_agrees(&self, phrase: &str, class_id: i32) -> bool {
+        let words: Vec<&str> = phrase.split_whitespace().collect();
+        let Some(head) = words.last().filter(|_| words.len() > 1) else { return true };
+        if let Some(g) = lexical_exact(head) {
+            return g.class_id == class_id;
+        }
+        self.class_score(head, class_id).is_some_and(|s| s >= HEAD_THRESHOLD)
+    }
+
+    /// Highest similarity of `phrase` to a name or synonym of `class_id`.
+    pub fn class_score(&self, phrase: &str, class_id: i32) -> Option<f32> {
+        let q = self.minilm.as_ref()?.embed(phrase).ok()?;
+        self.entries.iter().filter(|e| e.class_id == class_id).map(|e| cosine(&q, &e.embedding)).max_by(f32::total_cmp)
     }
 
     /// The nearest entry, its score and the three nearest distinct class names.
@@ -164,9 +198,20 @@ impl Grounder {
     }
 }
 
+/// A class name or synonym, as is or in the singular.
+fn lexical_exact(word: &str) -> Option<Grounding> {
+    let exact = |p: &str| -> Option<Grounding> {
+        let name = coco::id(p).map(|_| p).or_else(|| SYNONYMS.iter().find(|(s, _)| *s == p).map(|(_, c)| *c))?;
+        Some(Grounding { class_id: coco::id(name)?, via: Via::Lexical(p.to_string()) })
+    };
+    exact(word).or_else(|| exact(&singular(word)))
+}
+
 /// Exact class name or synonym, for the phrase, its singular, its head noun
-/// (last word: "red chair" → chair) or any single word in it naming a class
-/// ("elephant statue" → elephant).
+/// (last word: "red chair" → chair), or — when the head noun is a depiction
+/// ("elephant statue", "human statue") — a word before it naming a class.
+/// A modifier alone does not ground a phrase whose head noun is something
+/// else ("visitor care" is not a person).
 pub fn lexical(phrase: &str) -> Option<Grounding> {
     let exact = |p: &str| -> Option<Grounding> {
         let name = coco::id(p).map(|_| p).or_else(|| SYNONYMS.iter().find(|(s, _)| *s == p).map(|(_, c)| *c))?;
@@ -182,7 +227,12 @@ pub fn lexical(phrase: &str) -> Option<Grounding> {
         // The last two words ("the red office chair" → "office chair"), then the head noun.
         .or_else(|| (words.len() > 2).then(|| words[words.len() - 2..].join(" ")).and_then(|p| exact(&p).or_else(|| exact(&singular(&p)))))
         .or_else(|| exact(words[words.len() - 1]).or_else(|| exact(&singular(words[words.len() - 1]))))
-        .or_else(|| words.iter().rev().find_map(|w| exact(w).or_else(|| exact(&singular(w)))))
+        .or_else(|| {
+            DEPICTIONS
+                .contains(&words[words.len() - 1])
+                .then(|| words.iter().rev().find_map(|w| exact(w).or_else(|| exact(&singular(w)))))
+                .flatten()
+        })
 }
 
 fn singular(w: &str) -> String {
@@ -228,6 +278,9 @@ mod tests {
         assert_eq!(id("pharmacy"), None);
         assert_eq!(id("statue"), None);
         assert_eq!(id(""), None);
+        // A modifier naming a class does not ground another head noun.
+        assert_eq!(id("visitor care"), None);
+        assert_eq!(id("visitor character each close"), None);
     }
 
     #[test]

@@ -99,7 +99,9 @@ struct Token {
     capital: bool,
 }
 
-const HONORIFICS: &[&str] = &["mr.", "mrs.", "ms.", "dr.", "mr", "mrs", "ms", "dr", "miss", "sir", "madam", "prof.", "prof"];
+/// Titles before a name; the spelled-out forms are what speech recognition writes.
+const HONORIFICS: &[&str] =
+    &["mr.", "mrs.", "ms.", "dr.", "mr", "mrs", "ms", "dr", "miss", "sir", "madam", "prof.", "prof", "mister", "missus"];
 
 fn tokenize(text: &str) -> Vec<Token> {
     let text = text.replace(['\u{2019}', '\u{2018}'], "'").replace(['\u{201c}', '\u{201d}'], "\"").replace('°', " degrees ");
@@ -217,8 +219,26 @@ fn clauses(tokens: &[Token]) -> Vec<Vec<Token>> {
         }
         i += 1;
     }
-    out.into_iter().filter(|c| !c.is_empty()).collect()
+    // A side said on its own ("in your right, you may see …", a comma a
+    // transcriber put in) belongs to the clause after it.
+    let mut merged: Vec<Vec<Token>> = Vec::new();
+    let mut pending: Vec<Token> = Vec::new();
+    for clause in out.into_iter().filter(|c| !c.is_empty()) {
+        let only_side = clause.iter().any(|t| matches!(t.w.as_str(), "left" | "right"))
+            && clause.iter().all(|t| SIDE_PHRASE_WORDS.contains(&t.w.as_str()));
+        pending.extend(clause);
+        if !only_side {
+            merged.push(std::mem::take(&mut pending));
+        }
+    }
+    if !pending.is_empty() {
+        merged.push(pending);
+    }
+    merged
 }
+
+/// Words of a side phrase that is not a clause by itself ("on your left").
+const SIDE_PHRASE_WORDS: &[&str] = &["on", "in", "to", "at", "your", "the", "my", "left", "right", "hand", "side", "left-hand", "right-hand"];
 
 // ---- numbers and units ------------------------------------------------------
 
@@ -454,7 +474,7 @@ const STOP_PREPS: &[&str] = &["near", "at", "by", "beside", "next", "in", "befor
 /// Words that end a target phrase.
 const PHRASE_END: &[&str] = &[
     "to", "and", "which", "that", "who", "so", "then", "until", "for", "from", "with", "on", "at", "near", "by",
-    "beside", "behind", "before", "after", "in", "into", "when", "while", "if", "follow", "it", "there", "please",
+    "beside", "behind", "before", "after", "in", "into", "when", "while", "if", "follow", "followed", "follows", "it", "there", "please",
     "is", "are", "was", "standing", "stands", "sitting", "sits", "lies", "lying", "located", "placed", "kept",
 ];
 const PARTICIPLES: &[&str] = &["standing", "sitting", "lying", "placed", "kept", "located"];
@@ -469,7 +489,7 @@ fn phrase_from(t: &[Token], start: usize) -> (String, bool) {
     }
     // "the spot / place where the bicycle is standing" → "bicycle"
     if i + 1 < t.len()
-        && matches!(t[i].w.as_str(), "spot" | "place" | "location" | "point" | "area" | "position")
+        && matches!(t[i].w.as_str(), "spot" | "place" | "location" | "point" | "area" | "position" | "part" | "corner")
         && t[i + 1].w == "where"
     {
         i += 2;

@@ -85,6 +85,7 @@ const TABLE: &[(&str, &str)] = &[
     ("go to the pharmacy", "?"),
     ("find the statue", "?"),
     // People.
+    ("Hi buddy, please deliver this file to Mister David and report back to me.", r#"[{"action":"FIND","target":"mister david","id":0,"person":"david"},{"action":"RETURN"}]"#),
     ("find Mrs. Smith", r#"[{"action":"FIND","target":"mrs. smith","id":0,"person":"smith"}]"#),
     ("go to David", r#"[{"action":"FIND","target":"david","id":0,"person":"david"}]"#),
     ("follow the person for 30 seconds", r#"[{"action":"FOLLOW","target":"person","id":0,"duration_s":30.0}]"#),
@@ -98,6 +99,14 @@ const TABLE: &[(&str, &str)] = &[
     // Filler and nonsense.
     ("Hey buddy, please go to the chair, thanks!", r#"[{"action":"FIND","target":"chair","id":56}]"#),
     ("asdf qwerty zxcv", "?"),
+    // Transcribed speech: a side set off by a comma, "followed", "the part
+    // where"; a modifier naming a class does not ground another head noun.
+    (
+        "Buddy, take left turn, move four meters ahead, and find the standing person to reach close to it. In your right, you may see the visitor chair followed. Finally go at part where bicycle is standing.",
+        r#"[{"action":"MOVE","f_dist":4.0,"yaw":1.57},{"action":"FIND","target":"standing person","id":0},{"action":"FIND","target":"visitor chair","id":56},{"action":"FIND","target":"bicycle","id":1}]"#,
+    ),
+    ("find the visitor care to reach close to it", "?"),
+    ("then find the visitor character each close to it", "?"),
     ("dance for me", "?"),
     ("Ve a la silla y luego gira a la izquierda", "?"),
     ("请去椅子那里", "?"),
