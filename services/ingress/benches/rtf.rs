@@ -6,7 +6,10 @@
 //! Reports, per sentence, the front end (WAV decode, resampling to 16 kHz,
 //! silence trimming) and Whisper (mel features, encoder, greedy decoding)
 //! separately, each the median of `VLNAV_RTF_RUNS` runs (default 3).
-//! `VLNAV_INGRESS_DEVICE` picks the device (cpu, cuda, cuda:N).
+//! `VLNAV_INGRESS_DEVICE` picks the device (cpu, cuda, cuda:N);
+//! `VLNAV_INGRESS_PROMPT` (empty: none), `VLNAV_INGRESS_BEAM_SIZE` and
+//! `VLNAV_INGRESS_WINDOW_MARGIN_S` (`none`: always 30 s) change decoding
+//! from the service's defaults, to compare.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -31,9 +34,26 @@ fn main() {
     let device = device_from_name(&device_name).expect("device");
     let load_start = Instant::now();
     let mut recognizer = SpeechRecognizer::load(&ModelFiles::in_dir(&opts.whisper_dir()), &device).expect("load Whisper");
+    let mut decode = vlnav_ingress::whisper::DecodeOptions::default();
+    if let Ok(p) = std::env::var("VLNAV_INGRESS_PROMPT") {
+        decode.prompt = p;
+    }
+    if let Ok(b) = std::env::var("VLNAV_INGRESS_BEAM_SIZE") {
+        decode.beam_size = b.parse().expect("VLNAV_INGRESS_BEAM_SIZE: a whole number");
+    }
+    if let Ok(m) = std::env::var("VLNAV_INGRESS_WINDOW_MARGIN_S") {
+        decode.window_margin_s = if m == "none" { None } else { Some(m.parse().expect("VLNAV_INGRESS_WINDOW_MARGIN_S: seconds or none")) };
+    }
+    recognizer.set_options(decode.clone()).expect("decoding options");
     let load_s = load_start.elapsed().as_secs_f64();
     let threads = candle_core::utils::get_num_threads();
     println!("Whisper tiny.en on {device_name} ({threads} threads), model load {load_s:.2} s, median of {runs} runs");
+    println!(
+        "prompt {} tokens, beam {}, window {}",
+        recognizer.prompt_len(),
+        decode.beam_size,
+        decode.window_margin_s.map_or("30 s always".to_string(), |m| format!("speech + {m} s"))
+    );
     println!(
         "{:>8} {:>9} {:>9} {:>9} {:>7} {:>9} {:>8} {:>7}  sentence",
         "speech s", "front ms", "encode s", "decode s", "tokens", "whisper s", "total s", "RTF"

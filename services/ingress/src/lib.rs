@@ -4,8 +4,10 @@
 //! - `Transcribe`: client-streamed audio (raw PCM16 mono at any rate, or a
 //!   WAV file of any common rate, sample format and channel count) → mono,
 //!   16 kHz ([`resample`]), silence trimmed ([`trim`]), at most 60 s →
-//!   Whisper tiny.en on candle ([`whisper`]), greedy, English-only, no
-//!   timestamps → normalised text ([`text`]).
+//!   Whisper tiny.en on candle ([`whisper`]): English-only, no timestamps,
+//!   beam search conditioned on a domain prompt (COCO-80 names and robot
+//!   commands), a short encoder window for short speech → normalised text
+//!   ([`text`]).
 //! - `NormalizeText`: the same text normalisation for typed instructions.
 //!
 //! The weights are OpenAI's Whisper tiny.en as shipped in CTranslate2 format
@@ -59,6 +61,21 @@ pub struct Options {
     /// An upload that sends no chunk for this long is refused, seconds.
     #[arg(long = "ingress-chunk-timeout-s", env = "VLNAV_INGRESS_CHUNK_TIMEOUT_S", default_value_t = 10.0)]
     pub chunk_timeout_s: f64,
+    /// Decoding prompt: text the decoder sees as said just before, so its
+    /// words become more likely (Whisper's initial prompt). Default: the
+    /// COCO-80 class names and robot-command words; empty: no prompt.
+    #[arg(long = "ingress-prompt", env = "VLNAV_INGRESS_PROMPT")]
+    pub prompt: Option<String>,
+    /// Beam width of the decoder (1: greedy).
+    #[arg(long = "ingress-beam-size", env = "VLNAV_INGRESS_BEAM_SIZE", default_value_t = whisper::DEFAULT_BEAM_SIZE)]
+    pub beam_size: usize,
+    /// A recording shorter than 30 s is encoded over its length plus this
+    /// margin (whole seconds) rather than a full 30 s window.
+    #[arg(long = "ingress-window-margin-s", env = "VLNAV_INGRESS_WINDOW_MARGIN_S", default_value_t = whisper::DEFAULT_WINDOW_MARGIN_S)]
+    pub window_margin_s: f64,
+    /// Always encode full 30 s windows (slower on short recordings).
+    #[arg(long = "ingress-full-window", env = "VLNAV_INGRESS_FULL_WINDOW", default_value_t = false)]
+    pub full_window: bool,
 }
 
 impl Default for Options {
@@ -69,6 +86,10 @@ impl Default for Options {
             device: "cpu".into(),
             max_audio_s: 60.0,
             chunk_timeout_s: 10.0,
+            prompt: None,
+            beam_size: whisper::DEFAULT_BEAM_SIZE,
+            window_margin_s: whisper::DEFAULT_WINDOW_MARGIN_S,
+            full_window: false,
         }
     }
 }
@@ -76,6 +97,15 @@ impl Default for Options {
 impl Options {
     pub fn whisper_dir(&self) -> PathBuf {
         self.whisper_dir.clone().unwrap_or_else(|| self.models_dir.join("whisper"))
+    }
+
+    /// How Whisper decodes, from these options.
+    pub fn decode_options(&self) -> whisper::DecodeOptions {
+        whisper::DecodeOptions {
+            prompt: self.prompt.clone().unwrap_or_else(whisper::default_prompt),
+            window_margin_s: (!self.full_window).then_some(self.window_margin_s),
+            beam_size: self.beam_size,
+        }
     }
 }
 
@@ -92,11 +122,24 @@ pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> a
         "ingress: chunk timeout must be a positive number of seconds, got {}",
         opts.chunk_timeout_s
     );
+    anyhow::ensure!(
+        (1..=16).contains(&opts.beam_size),
+        "ingress: beam size must be between 1 and 16, got {}",
+        opts.beam_size
+    );
+    anyhow::ensure!(
+        opts.window_margin_s.is_finite() && opts.window_margin_s >= 0.0,
+        "ingress: window margin must be a non-negative number of seconds, got {}",
+        opts.window_margin_s
+    );
     let files = ModelFiles::in_dir(&opts.whisper_dir());
+    let decode = opts.decode_options();
     let device_name = opts.device.clone();
     let recognizer = tokio::task::spawn_blocking(move || {
         let device = whisper::device_from_name(&device_name)?;
-        SpeechRecognizer::load(&files, &device)
+        let mut recognizer = SpeechRecognizer::load(&files, &device)?;
+        recognizer.set_options(decode)?;
+        Ok::<_, whisper::ModelError>(recognizer)
     })
     .await??;
     let mailbox = actor::spawn(recognizer)?;

@@ -169,6 +169,7 @@ impl Encoder {
 
 /// Decoding state of one audio window: per-layer self-attention cache and
 /// the cross-attention keys/values of the audio.
+#[derive(Clone)]
 pub struct DecoderState {
     self_kv: Vec<Option<(Tensor, Tensor)>>,
     cross_kv: Vec<(Tensor, Tensor)>,

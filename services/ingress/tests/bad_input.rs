@@ -136,3 +136,16 @@ async fn a_missing_model_stops_the_service_from_starting_and_names_the_setup_scr
     let msg = format!("{err:#}");
     assert!(msg.contains("deploy/fetch-models.sh") && msg.contains("whisper"), "{msg}");
 }
+
+#[tokio::test]
+async fn bad_decoding_options_stop_the_service_from_starting() {
+    let cfg = vlnav_runtime::ServerConfig::default();
+    for (opts, needle) in [
+        (Options { beam_size: 0, ..options() }, "beam size"),
+        (Options { window_margin_s: -1.0, ..options() }, "window margin"),
+        (Options { window_margin_s: f64::NAN, ..options() }, "window margin"),
+    ] {
+        let err = vlnav_ingress::services(&opts, &cfg).await.err().expect("refused");
+        assert!(format!("{err:#}").contains(needle), "{err:#}");
+    }
+}

@@ -91,3 +91,34 @@ async fn speech_longer_than_one_window_is_decoded_window_by_window() {
     let heard = t.text.to_lowercase();
     assert!(heard.contains("left turn") && heard.contains("pharmacy") && heard.contains("report back"), "{heard}");
 }
+
+#[test]
+fn the_default_prompt_fits_whisper_context_whole() {
+    use vlnav_ingress::whisper::{DecodeOptions, MAX_PROMPT_TOKENS};
+    let opts = options();
+    let mut r = vlnav_ingress::SpeechRecognizer::load(&vlnav_ingress::ModelFiles::in_dir(&opts.whisper_dir()), &candle_core::Device::Cpu)
+        .expect("load Whisper");
+    // Loaded with the default prompt: COCO names and commands, not cut.
+    assert!(r.prompt_len() > 150 && r.prompt_len() < MAX_PROMPT_TOKENS, "{} tokens", r.prompt_len());
+    assert_eq!(opts.decode_options(), DecodeOptions::default());
+    r.set_options(DecodeOptions { prompt: String::new(), ..DecodeOptions::default() }).unwrap();
+    assert_eq!(r.prompt_len(), 0);
+    // A prompt longer than Whisper takes keeps its last 223 tokens.
+    r.set_options(DecodeOptions { prompt: "chair ".repeat(400), ..DecodeOptions::default() }).unwrap();
+    assert_eq!(r.prompt_len(), MAX_PROMPT_TOKENS);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn short_speech_on_a_short_window_reads_like_the_full_window() {
+    // The same short sentence through a service that always encodes 30 s and
+    // one that encodes the speech plus the margin: the words agree.
+    let text = INSTRUCTIONS[2];
+    let wav = speak(text);
+    let mut short = serve(options()).await;
+    let mut full = serve(vlnav_ingress::Options { full_window: true, ..options() }).await;
+    let a = transcribe(&mut short.client, chunks(AudioFormat::Wav, 0, &wav, 64 * 1024)).await.unwrap();
+    let b = transcribe(&mut full.client, chunks(AudioFormat::Wav, 0, &wav, 64 * 1024)).await.unwrap();
+    eprintln!("short window: {}\nfull window:  {}", a.text, b.text);
+    assert_eq!(scoring_words(&a.text), scoring_words(&b.text));
+    assert!(word_error_rate(text, &a.text) <= MAX_WER);
+}
