@@ -157,3 +157,39 @@ pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> a
         .max_encoding_message_size(server.max_message_bytes);
     Ok(vlnav_runtime::ServiceSet::new().add("transcribe", svc))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        opts: Options,
+    }
+
+    #[test]
+    fn decoding_options_come_from_flags() {
+        let defaults = Cli::parse_from(["ingress"]).opts;
+        assert_eq!(defaults.decode_options(), whisper::DecodeOptions::default());
+        assert!(defaults.decode_options().prompt.contains("toothbrush"));
+
+        let set = Cli::parse_from([
+            "ingress",
+            "--ingress-prompt",
+            "",
+            "--ingress-beam-size",
+            "1",
+            "--ingress-window-margin-s",
+            "4",
+        ])
+        .opts;
+        let d = set.decode_options();
+        assert_eq!((d.prompt.as_str(), d.beam_size, d.window_margin_s), ("", 1, Some(4.0)));
+
+        let full = Cli::parse_from(["ingress", "--ingress-full-window", "--ingress-prompt", "go to the chair"]).opts;
+        assert_eq!(full.decode_options().window_margin_s, None);
+        assert_eq!(full.decode_options().prompt, "go to the chair");
+    }
+}

@@ -1,6 +1,6 @@
 //! Whisper's transformer on candle, reading the tensor names of
 //! `candle_transformers::models::whisper` (what `vlnav-convert-whisper`
-//! writes), with what greedy decoding needs to be fast on a CPU: the
+//! writes), with what decoding needs to be fast on a CPU: the
 //! decoder keeps the keys and values of its self-attention between steps,
 //! so each new token costs one position instead of the whole prefix, and the
 //! cross-attention keys and values of the audio are computed once per window.
