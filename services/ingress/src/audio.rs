@@ -271,7 +271,7 @@ pub fn decode_pcm16_mono(bytes: &[u8], sample_rate: u32) -> Result<Pcm, AudioErr
     if bytes.is_empty() {
         return Err(AudioError::Empty);
     }
-    if bytes.len() % 2 != 0 {
+    if !bytes.len().is_multiple_of(2) {
         return Err(AudioError::OddPcm16Length(bytes.len()));
     }
     let samples = bytes.chunks_exact(2).map(|b| i16::from_le_bytes([b[0], b[1]]) as f32 / 32_768.0).collect();

@@ -37,7 +37,8 @@ pub const VAGUE_FAR_M: f64 = 8.0;
 pub const STEP_M: f64 = 0.75;
 /// A right-angle turn as the paper writes it, radians.
 pub const RIGHT_ANGLE: f64 = 1.57;
-/// Half a turn, radians.
+/// Half a turn, radians, as the paper writes it (3.14, not π).
+#[allow(clippy::approx_constant)]
 pub const HALF_TURN: f64 = 3.14;
 /// "Turn slightly", "bear left", radians (30°).
 pub const SLIGHT_TURN_RAD: f64 = 0.52;
@@ -675,11 +676,11 @@ fn resolve(t: &[Token]) -> Vec<Directive> {
             dist = v;
         }
         let vague_far = ws.iter().any(|w| matches!(*w, "far")) || has_seq(&ws, &["long", "way"]).is_some();
-        let vague_short = ws.iter().any(|w| matches!(*w, "little" | "bit" | "slightly" | "tad" | "bit."));
         // A drive word without a distance: "move a little ahead", "go straight".
         let pure_turn = turn_cue && !ws.iter().any(|w| matches!(*w, "move" | "go" | "drive" | "walk" | "proceed" | "advance" | "ahead" | "forward" | "forwards" | "straight" | "continue" | "keep"));
         if dist == 0.0 && !pure_turn && !turn_cue {
-            dist = if vague_far { VAGUE_FAR_M } else if vague_short { VAGUE_SHORT_M } else { VAGUE_SHORT_M };
+            // "a little" and an unqualified drive both take the short default.
+            dist = if vague_far { VAGUE_FAR_M } else { VAGUE_SHORT_M };
         }
         if dist == 0.0 && turn_cue && !pure_turn {
             // "turn left and go" in one clause with no distance.
@@ -830,15 +831,15 @@ pub fn parse(text: &str, grounder: &Grounder) -> Parsed {
     // slipped through the layers (a name made of junk, a step of nothing)
     // becomes a question.
     static VALIDATOR: std::sync::OnceLock<crate::validate::Validator> = std::sync::OnceLock::new();
-    if let Outcome::Plan(plan) = &parsed.outcome {
-        if let Err(errors) = VALIDATOR.get_or_init(crate::validate::Validator::new).validate_plan(plan) {
-            return Parsed::ask(
-                "I could not make a safe plan from that. Could you say it more simply?",
-                errors.join("; "),
-                vec![],
-                parsed.notes,
-            );
-        }
+    if let Outcome::Plan(plan) = &parsed.outcome
+        && let Err(errors) = VALIDATOR.get_or_init(crate::validate::Validator::new).validate_plan(plan)
+    {
+        return Parsed::ask(
+            "I could not make a safe plan from that. Could you say it more simply?",
+            errors.join("; "),
+            vec![],
+            parsed.notes,
+        );
     }
     parsed
 }
