@@ -59,6 +59,13 @@ pub struct ExecutorParams {
     /// A step blocked (or making no progress) this long asks the user, seconds.
     #[arg(long, default_value_t = 8.0)]
     pub stuck_timeout_s: f64,
+    /// A drive within its goal's tolerance + 0.25 m that has not got closer
+    /// for this long settles where it is (it has arrived), seconds.
+    #[arg(long, default_value_t = 3.0)]
+    pub settle_after_s: f64,
+    /// A drive that has not got 0.1 m closer for this long asks the user, seconds.
+    #[arg(long, default_value_t = 30.0)]
+    pub progress_timeout_s: f64,
     /// A step running longer than this asks the user, seconds.
     #[arg(long, default_value_t = 180.0)]
     pub step_timeout_s: f64,
@@ -83,6 +90,8 @@ impl Default for ExecutorParams {
             search_legs: 1,
             search_leg_m: 2.0,
             stuck_timeout_s: 8.0,
+            settle_after_s: 3.0,
+            progress_timeout_s: 30.0,
             step_timeout_s: 180.0,
             follow_default_s: 30.0,
             follow_lost_s: 3.0,

@@ -55,6 +55,18 @@ pub struct Tick {
 /// Sensor seconds a stage may stay unreachable before the mission fails.
 const STAGE_OUTAGE_S: f64 = 10.0;
 
+/// A step makes progress when it gets this much closer to its goal, m …
+const PROGRESS_M: f64 = 0.1;
+/// … or, turning in place, this much closer to its heading, rad.
+const PROGRESS_RAD: f64 = 0.05;
+/// A drive that stops converging within this distance beyond its goal's
+/// tolerance has arrived: it settles instead of asking, m.
+const SETTLE_M: f64 = 0.25;
+/// Sensor seconds one scan turn of exploration may take before looking anyway.
+const SCAN_TURN_LIMIT_S: f64 = 4.0;
+/// A search leg slower than this on average ends early, m/s.
+const SEARCH_MIN_SPEED: f64 = 0.2;
+
 pub struct Ctx<'a> {
     pub pipeline: &'a Pipeline,
     pub params: &'a ExecutorParams,
@@ -155,9 +167,10 @@ pub fn after_look(turn: u32, leg: u32, p: &ExecutorParams) -> ExplorePlan {
 
 enum Explore {
     Idle,
-    Turn { goal: Goal, turn: u32, leg: u32 },
+    /// `since`: the stamp the turn or leg began.
+    Turn { goal: Goal, turn: u32, leg: u32, since: f64 },
     Look { frames_left: u32, turn: u32, leg: u32 },
-    Search { goal: Goal, leg: u32 },
+    Search { goal: Goal, leg: u32, since: f64 },
 }
 
 struct FindRun {
@@ -175,6 +188,9 @@ struct FindRun {
     last_seen: Option<f64>,
     follow_until: Option<f64>,
     explore: Explore,
+    /// The pose a look-around began at: its turns are counted from it, so
+    /// each turn's tolerance does not shrink the look-around.
+    scan_origin: Pose2D,
 }
 
 enum StepRun {
@@ -184,6 +200,9 @@ enum StepRun {
 
 struct Active {
     started: f64,
+    /// The best distance (rotation goals: yaw error) so far and when it was reached.
+    progress: Option<(f64, f64)>,
+    /// Since when the local planner has said Blocked or NoProgress without a break.
     stuck_since: Option<f64>,
     run: StepRun,
     span: tracing::Span,
@@ -368,33 +387,63 @@ impl MissionRun {
         goal: &Goal,
         plan: vlnav_proto::v1::PlanStepResponse,
     ) -> Result<(Twist2D, Option<MissionState>), StageError> {
-        match LocalPlanStatus::try_from(plan.status).unwrap_or(LocalPlanStatus::Unspecified) {
-            LocalPlanStatus::Reached => {
-                self.complete_step(ctx, stamp, pose, goal);
-                Ok((zero(), None))
-            }
-            s @ (LocalPlanStatus::Blocked | LocalPlanStatus::NoProgress) => {
-                let step = self.step.as_mut().expect("a step is active");
-                let since = *step.stuck_since.get_or_insert(stamp);
-                if stamp - since >= ctx.params.stuck_timeout_s {
-                    let why = if s == LocalPlanStatus::Blocked { "my way is blocked" } else { "I am not getting closer" };
-                    self.ask(
-                        ctx,
-                        stamp,
-                        format!("step {}: {why} ({:.1} m from the goal)", self.index + 1, plan.distance_to_goal),
-                        format!("{} — should I try another way, skip this step, or stop?", capitalise(why)),
-                    );
-                    return Ok((zero(), None));
-                }
-                Ok((plan.cmd.unwrap_or_default(), None))
-            }
-            _ => {
-                if let Some(step) = self.step.as_mut() {
-                    step.stuck_since = None;
-                }
-                Ok((plan.cmd.unwrap_or_default(), None))
-            }
+        let status = LocalPlanStatus::try_from(plan.status).unwrap_or(LocalPlanStatus::Unspecified);
+        tracing::debug!(
+            mission = %self.mission_id, step = self.index, stamp, ?status, distance = plan.distance_to_goal,
+            heading_error = plan.heading_error, free_paths = plan.free_paths, x = pose.x, y = pose.y, theta = pose.theta,
+            "drive"
+        );
+        if status == LocalPlanStatus::Reached {
+            self.complete_step(ctx, stamp, pose, goal);
+            return Ok((zero(), None));
         }
+        // Progress is measured here, over the whole step, in sensor time: the
+        // local planner's own watchdog fires once per window and then moves
+        // again, so a robot circling its goal would never count as stuck.
+        let (measure, step_m) = if goal.rotation_only {
+            (plan.heading_error.abs(), PROGRESS_RAD)
+        } else {
+            (plan.distance_to_goal, PROGRESS_M)
+        };
+        let step = self.step.as_mut().expect("a step is active");
+        let since = match &mut step.progress {
+            Some(p) => {
+                if measure < p.0 - step_m {
+                    *p = (measure, stamp);
+                }
+                p.1
+            }
+            None => {
+                step.progress = Some((measure, stamp));
+                stamp
+            }
+        };
+        let stuck_since = if matches!(status, LocalPlanStatus::Blocked | LocalPlanStatus::NoProgress) {
+            *step.stuck_since.get_or_insert(stamp)
+        } else {
+            step.stuck_since = None;
+            stamp
+        };
+        let params = ctx.params;
+        if !goal.rotation_only
+            && plan.distance_to_goal <= goal.position_tolerance + SETTLE_M
+            && stamp - since >= params.settle_after_s
+        {
+            // Close to the goal and no longer converging: settle where we are.
+            self.complete_step(ctx, stamp, pose, goal);
+            return Ok((zero(), None));
+        }
+        if stamp - stuck_since < params.stuck_timeout_s && stamp - since < params.progress_timeout_s {
+            return Ok((plan.cmd.unwrap_or_default(), None));
+        }
+        let why = if status == LocalPlanStatus::Blocked { "my way is blocked" } else { "I am not getting closer" };
+        self.ask(
+            ctx,
+            stamp,
+            format!("step {}: {why} ({:.1} m from the goal)", self.index + 1, plan.distance_to_goal),
+            format!("{} — should I try another way, skip this step, or stop?", capitalise(why)),
+        );
+        Ok((zero(), None))
     }
 
     async fn start_step(&mut self, ctx: &Ctx<'_>, frame: &RgbdFrame, pose: &Pose2D) -> Result<(), StageError> {
@@ -451,6 +500,7 @@ impl MissionRun {
                     last_seen: None,
                     follow_until: None,
                     explore: Explore::Idle,
+                    scan_origin: Pose2D::default(),
                 })),
                 ActionKind::Unspecified => {
                     return Err(StageError {
@@ -473,7 +523,7 @@ impl MissionRun {
                 m.state = MissionState::Running as i32;
             },
         );
-        self.step = Some(Active { started: frame.stamp, stuck_since: None, run, span });
+        self.step = Some(Active { started: frame.stamp, progress: None, stuck_since: None, run, span });
         Ok(())
     }
 
@@ -774,32 +824,40 @@ impl MissionRun {
         let stamp = frame.stamp;
         let params = ctx.params;
         let index = self.index as u32;
-        let turn_goal = |ctx: &Ctx<'_>| {
+        // Scan turn `turn` (0-based) of the look-around that began at `origin`.
+        let turn_goal = |ctx: &Ctx<'_>, origin: Pose2D, turn: u32| {
             let mut subgoal = ctx.pipeline.subgoal.clone();
-            let req = MoveGoalRequest { anchor: Some(*pose), f_dist: 0.0, yaw: params.scan_turn_rad, d_s: 0.0 };
+            let yaw = wrap(params.scan_turn_rad * f64::from(turn + 1));
+            let req = MoveGoalRequest { anchor: Some(origin), f_dist: 0.0, yaw, d_s: 0.0 };
             async move { subgoal.move_goal(req).await.map(|r| r.into_inner()).map_err(stage("subgoal")) }
         };
         let Some(Active { run: StepRun::Find(f), .. }) = self.step.as_mut() else { unreachable!() };
         let state = std::mem::replace(&mut f.explore, Explore::Idle);
+        if matches!(state, Explore::Idle) || matches!(&state, Explore::Search { .. }) {
+            f.scan_origin = *pose;
+        }
+        let origin = f.scan_origin;
         let (next, twist) = match state {
             Explore::Idle => {
-                let goal = turn_goal(ctx).await?;
+                let goal = turn_goal(ctx, origin, 0).await?;
                 self.emit(ctx, stamp, Kind::Exploring(Exploring { index, phase: "scan".into(), attempt: 1 }), |_| {});
-                (Explore::Turn { goal, turn: 0, leg: 0 }, zero())
+                (Explore::Turn { goal, turn: 0, leg: 0, since: stamp }, zero())
             }
-            Explore::Turn { goal, turn, leg } => {
+            Explore::Turn { goal, turn, leg, since } => {
                 let plan = self.local_plan(ctx, frame, &goal, no_go).await?;
-                if plan.status == LocalPlanStatus::Reached as i32 {
+                // A scan turn that does not finish in time (a wheel stalled
+                // short of the heading) looks from where it got to.
+                if plan.status == LocalPlanStatus::Reached as i32 || stamp - since >= SCAN_TURN_LIMIT_S {
                     (Explore::Look { frames_left: params.look_frames, turn, leg }, zero())
                 } else {
-                    (Explore::Turn { goal, turn, leg }, plan.cmd.unwrap_or_default())
+                    (Explore::Turn { goal, turn, leg, since }, plan.cmd.unwrap_or_default())
                 }
             }
             Explore::Look { frames_left, turn, leg } if frames_left > 1 => {
                 (Explore::Look { frames_left: frames_left - 1, turn, leg }, zero())
             }
             Explore::Look { turn, leg, .. } => match after_look(turn, leg, params) {
-                ExplorePlan::Turn(t) => (Explore::Turn { goal: turn_goal(ctx).await?, turn: t, leg }, zero()),
+                ExplorePlan::Turn(t) => (Explore::Turn { goal: turn_goal(ctx, origin, t).await?, turn: t, leg, since: stamp }, zero()),
                 ExplorePlan::Search(l) => {
                     let goal = ctx
                         .pipeline
@@ -810,7 +868,7 @@ impl MissionRun {
                         .map_err(stage("subgoal"))?
                         .into_inner();
                     self.emit(ctx, stamp, Kind::Exploring(Exploring { index, phase: "search".into(), attempt: l }), |_| {});
-                    (Explore::Search { goal, leg: l }, zero())
+                    (Explore::Search { goal, leg: l, since: stamp }, zero())
                 }
                 ExplorePlan::Ask => {
                     let (target, person) = match self.step.as_ref().map(|s| &s.run) {
@@ -831,14 +889,15 @@ impl MissionRun {
                     return Ok((zero(), None));
                 }
             },
-            Explore::Search { goal, leg } => {
+            Explore::Search { goal, leg, since } => {
                 let plan = self.local_plan(ctx, frame, &goal, no_go).await?;
                 let status = LocalPlanStatus::try_from(plan.status).unwrap_or(LocalPlanStatus::Unspecified);
-                if matches!(status, LocalPlanStatus::Reached | LocalPlanStatus::Blocked | LocalPlanStatus::NoProgress) {
+                let overdue = stamp - since >= params.search_leg_m / SEARCH_MIN_SPEED + SCAN_TURN_LIMIT_S;
+                if overdue || matches!(status, LocalPlanStatus::Reached | LocalPlanStatus::Blocked | LocalPlanStatus::NoProgress) {
                     self.emit(ctx, stamp, Kind::Exploring(Exploring { index, phase: "scan".into(), attempt: leg + 1 }), |_| {});
-                    (Explore::Turn { goal: turn_goal(ctx).await?, turn: 0, leg }, zero())
+                    (Explore::Turn { goal: turn_goal(ctx, origin, 0).await?, turn: 0, leg, since: stamp }, zero())
                 } else {
-                    (Explore::Search { goal, leg }, plan.cmd.unwrap_or_default())
+                    (Explore::Search { goal, leg, since }, plan.cmd.unwrap_or_default())
                 }
             }
         };

@@ -488,10 +488,15 @@ async fn run_mission(
                 if elapsed > budget_s && !cancelled_for_time {
                         cancelled_for_time = true;
                         watched.reason = format!("no result within {budget_s} s of sensor time");
-                        missions
-                            .cancel_mission(pb::CancelMissionRequest { mission_id: mission_id.clone() })
-                            .await
-                            .map_err(|s| anyhow::anyhow!("CancelMission({mission_id}): {:?}: {}", s.code(), s.message()))?;
+                        match missions.cancel_mission(pb::CancelMissionRequest { mission_id: mission_id.clone() }).await {
+                            Ok(_) => {}
+                            // It finished on the same frame: its Finished event is on the way.
+                            Err(s) if s.code() == tonic::Code::FailedPrecondition => {
+                                cancelled_for_time = false;
+                                watched.reason.clear();
+                            }
+                            Err(s) => anyhow::bail!("CancelMission({mission_id}): {:?}: {}", s.code(), s.message()),
+                        }
                 }
             }
             _ = tokio::time::sleep(stall) => {

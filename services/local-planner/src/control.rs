@@ -7,7 +7,11 @@
 //! - Rotate in place (the authors' rule) while the goal is more than
 //!   `rotate_threshold` (1.0 rad) off the heading, `ω = 0.8·error`, until it is
 //!   within `rotate_exit` (0.3 rad, hysteresis so the paths take over inside
-//!   the camera's view).
+//!   the camera's view). Once aligned with a goal, the robot rotates in place
+//!   again only if the goal falls behind it (`rerotate_threshold`, 1.9 rad):
+//!   a detour around an obstacle between robot and goal points the heading
+//!   well away from the goal, and turning back to the goal there would
+//!   undo the detour and oscillate.
 //! - Path following (CMU's path follower): the look-ahead point is where the
 //!   chosen path crosses 0.5 m from the robot; `ω = 7.5·bearing`, clamped to
 //!   the yaw-rate limit and to what turns onto the bearing within one frame
@@ -44,6 +48,8 @@ pub struct FollowParams {
     /// Speed ramps up only while the look-ahead bearing is below this, rad.
     pub align_threshold: f64,
     pub rotate_threshold: f64,
+    /// Goal bearing beyond which an aligned robot rotates in place again, rad.
+    pub rerotate_threshold: f64,
     pub rotate_exit: f64,
     pub rotate_gain: f64,
     pub slow_down_distance: f64,
@@ -70,6 +76,7 @@ impl Default for FollowParams {
             max_accel: 1.0,
             align_threshold: 0.1,
             rotate_threshold: 1.0,
+            rerotate_threshold: 1.9,
             rotate_exit: 0.3,
             rotate_gain: 0.8,
             slow_down_distance: 1.0,
@@ -153,6 +160,8 @@ pub struct RobotState {
     last_stamp: Option<f64>,
     last_speed: f64,
     rotating: bool,
+    /// The robot has faced this goal once (rotate-in-place is done).
+    aligned: bool,
     /// Best distance of the current window and the stamp it was reached.
     progress: Option<(f64, f64)>,
     last_goal: Option<GoalSpec>,
@@ -222,6 +231,7 @@ impl RobotState {
             self.last_goal = Some(input.goal);
             self.progress = None;
             self.rotating = false;
+            self.aligned = false;
         }
         self.cloud = self.merge_memory(input.cloud, &input, p);
         let goal = input.goal;
@@ -258,8 +268,13 @@ impl RobotState {
             self.rotating = false;
             return stop(self, out, StepStatus::Reached);
         }
-        let exit = if self.rotating { p.rotate_exit } else { p.rotate_threshold };
+        let exit = match (self.rotating, self.aligned) {
+            (true, _) => p.rotate_exit,
+            (false, false) => p.rotate_threshold,
+            (false, true) => p.rerotate_threshold,
+        };
         self.rotating = bearing.abs() > exit;
+        self.aligned |= !self.rotating;
         if self.rotating {
             out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p.max_yaw_rate, dt);
             return stop(self, out, StepStatus::Rotating);

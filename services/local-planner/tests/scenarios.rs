@@ -80,7 +80,10 @@ struct Run {
 
 /// Closed loop until REACHED (or `steps` frames).
 fn drive(world: &World, start: Pose2, goal: GoalSpec, steps: usize) -> Run {
-    let params = FollowParams::default();
+    drive_with(FollowParams::default(), world, start, goal, steps)
+}
+
+fn drive_with(params: FollowParams, world: &World, start: Pose2, goal: GoalSpec, steps: usize) -> Run {
     let mut builder = CloudBuilder::new(CloudParams::default());
     let mut state = RobotState::default();
     let mut pose = start;
@@ -193,6 +196,27 @@ fn goal_behind_rotates_in_place_then_drives() {
     assert!(rotating.len() >= 3);
     assert!(run.poses[rotating.len()].x.abs() < 1e-9);
     assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached);
+}
+
+#[test]
+fn a_detour_that_points_away_from_the_goal_is_not_undone_by_rotating_back() {
+    // A wall across the direct line, 1 m ahead; its open end is to the left,
+    // so the way round heads well over 1 rad away from the goal.
+    let mut world = World::default();
+    world.add_box(1.0, -2.5, 1.2, 0.6, 1.0);
+    let (start, goal) = (Pose2::new(0.0, 0.0, 0.0), goal_at(2.6, -0.6, 0.25));
+    let run = drive(&world, start, goal, 400);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "{:?}", run.poses.last());
+    // Rotating back toward the goal as soon as it is 1 rad off (the initial
+    // alignment rule applied all the way) turns back and forth at the wall.
+    let naive = FollowParams { rerotate_threshold: FollowParams::default().rotate_threshold, ..FollowParams::default() };
+    let turning_back = drive_with(naive, &world, start, goal, 400);
+    assert!(
+        turning_back.outputs.len() > run.outputs.len(),
+        "with the detour kept: {} frames; turning back: {} frames",
+        run.outputs.len(),
+        turning_back.outputs.len()
+    );
 }
 
 #[test]

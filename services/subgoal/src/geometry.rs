@@ -85,7 +85,7 @@ pub struct MoveParams {
 
 impl Default for MoveParams {
     fn default() -> Self {
-        Self { rotation_only_below_m: 0.1, yaw_tolerance: 0.2, min_position_tolerance: 0.5 }
+        Self { rotation_only_below_m: 0.1, yaw_tolerance: 0.2, min_position_tolerance: 0.25 }
     }
 }
 
@@ -263,7 +263,7 @@ mod tests {
         near(g.pose.y, 2.0);
         near(g.pose.theta, PI);
         assert!(!g.rotation_only);
-        near(g.position_tolerance, 0.5);
+        near(g.position_tolerance, 0.25);
     }
 
     #[test]
@@ -274,7 +274,7 @@ mod tests {
         near(g.pose.y, 2.5 * (-1.57f64).sin());
         assert!((g.pose.y + 2.5).abs() < 1e-5);
         near(g.pose.theta, -1.57);
-        // Tolerance max(0.5, d_s).
+        // Tolerance max(0.25, d_s).
         near(g.position_tolerance, 1.2);
     }
 

@@ -32,7 +32,7 @@ pub struct Options {
     #[arg(long = "subgoal-default-stop-distance", env = "VLNAV_SUBGOAL_DEFAULT_STOP_DISTANCE_M", default_value_t = 2.0)]
     pub default_stop_distance_m: f64,
     /// Smallest position tolerance of a MOVE goal (raised to the step's d_s), m.
-    #[arg(long = "subgoal-move-tolerance", env = "VLNAV_SUBGOAL_MOVE_TOLERANCE_M", default_value_t = 0.5)]
+    #[arg(long = "subgoal-move-tolerance", env = "VLNAV_SUBGOAL_MOVE_TOLERANCE_M", default_value_t = 0.25)]
     pub move_tolerance_m: f64,
     /// Heading tolerance of a pure rotation (|f_dist| < 0.1 m), rad.
     #[arg(long = "subgoal-yaw-tolerance", env = "VLNAV_SUBGOAL_YAW_TOLERANCE", default_value_t = 0.2)]
@@ -71,7 +71,7 @@ impl Default for Options {
     fn default() -> Self {
         Self {
             default_stop_distance_m: 2.0,
-            move_tolerance_m: 0.5,
+            move_tolerance_m: 0.25,
             yaw_tolerance: 0.2,
             target_tolerance_m: 0.3,
             min_valid_pixels: 20,

@@ -96,7 +96,7 @@ async fn move_goal_turns_then_drives() {
     let p = g.pose.unwrap();
     assert!((p.x + 3.0).abs() < 1e-9 && (p.y - 2.0).abs() < 1e-9, "{p:?}");
     assert!(!g.rotation_only);
-    assert_eq!(g.position_tolerance, 0.5);
+    assert_eq!(g.position_tolerance, 0.25);
     let g = s
         .client
         .move_goal(pb::MoveGoalRequest { anchor: Some(pose(0.0, 0.0, 0.0)), f_dist: 0.0, yaw: -1.57, d_s: 0.0 })
