@@ -59,8 +59,9 @@ pub struct EvalArgs {
     /// Where the report, the CSV files and the plots are written.
     #[arg(long, env = "VLNAV_EVAL_OUT", default_value = ".vlnav/eval")]
     pub out: PathBuf,
-    /// Trials run at once, each its own robot id.
-    #[arg(long, env = "VLNAV_EVAL_JOBS", default_value_t = 2)]
+    /// Trials run at once, each its own robot id. A lockstep trial waits on
+    /// gRPC round trips most of the time, so many more than the cores pay.
+    #[arg(long, env = "VLNAV_EVAL_JOBS", default_value_t = 16)]
     pub jobs: usize,
     /// Camera resolution of the simulated D455 (default: the suite's).
     #[arg(long, env = "VLNAV_EVAL_WIDTH")]
@@ -90,7 +91,7 @@ impl Default for EvalArgs {
             scenarios: Vec::new(),
             modes: Vec::new(),
             out: PathBuf::from(".vlnav/eval"),
-            jobs: 2,
+            jobs: 16,
             width: None,
             height: None,
             frame_rate: 5.0,
