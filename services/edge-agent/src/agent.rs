@@ -19,10 +19,10 @@ use tonic::Streaming;
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::fleet_service_client::FleetServiceClient;
 use vlnav_runtime::CancellationToken;
-use vlnav_sim::{Simulator, load_scenario};
+use vlnav_sim::{Simulator, Twist, load_scenario};
 
 use crate::convert::{self, FrameMeta, RobotDescription};
-use crate::safety::{Backoff, Governor, Limits, Twist, Verdict};
+use crate::safety::{Backoff, Governor, Limits, Verdict};
 use crate::{EdgeOptions, Hooks, StepRecord};
 
 /// Why a session ended.
@@ -173,7 +173,7 @@ impl SimRobot {
         let truth = self.sim.truth();
         let odom = self.sim.odometry();
         let stamp = self.sim.time();
-        let wheel = Twist::new(odom.twist.linear, odom.twist.angular);
+        let wheel = odom.twist;
         let meta = FrameMeta {
             robot_id: &self.robot_id,
             seq: self.seq,
@@ -193,7 +193,7 @@ impl SimRobot {
     }
 
     fn step(&mut self, cmd: Twist) {
-        self.sim.step(vlnav_sim::Twist::new(cmd.linear, cmd.angular), self.period);
+        self.sim.step(cmd, self.period);
     }
 }
 

@@ -2,9 +2,9 @@
 
 use vlnav_proto::v1 as pb;
 use vlnav_sim::camera::CameraConfig;
-use vlnav_sim::{Frame, Pose2, Truth};
+use vlnav_sim::{Frame, Pose2, Truth, Twist};
 
-use crate::safety::{Limits, Twist};
+use crate::safety::Limits;
 
 /// The robot description sent in `EdgeHello`.
 #[derive(Clone, Debug, PartialEq)]

@@ -24,7 +24,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use tokio::sync::{mpsc, watch};
 use vlnav_runtime::CancellationToken;
 
-pub use safety::{Twist, Verdict};
+pub use safety::Verdict;
+pub use vlnav_sim::Twist;
 
 /// Which robot the agent drives.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]

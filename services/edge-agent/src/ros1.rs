@@ -15,11 +15,11 @@ use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use vlnav_proto::v1 as pb;
 use vlnav_runtime::CancellationToken;
-use vlnav_sim::Pose2;
+use vlnav_sim::{Pose2, Twist};
 
 use crate::agent::{Link, SessionEnd, StatusReporter, twist_of};
 use crate::convert::{self, RobotDescription};
-use crate::safety::{Backoff, Governor, Limits, Twist, Verdict};
+use crate::safety::{Backoff, Governor, Limits, Verdict};
 use crate::{EdgeOptions, Hooks, StepRecord};
 
 /// Message types generated from the ROS 1 definitions (see `build.rs`).

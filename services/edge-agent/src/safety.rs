@@ -4,22 +4,7 @@
 
 use std::time::Duration;
 
-/// A planar body velocity: forward m/s, yaw rate rad/s.
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct Twist {
-    pub linear: f64,
-    pub angular: f64,
-}
-
-impl Twist {
-    pub const ZERO: Twist = Twist { linear: 0.0, angular: 0.0 };
-    pub const fn new(linear: f64, angular: f64) -> Self {
-        Self { linear, angular }
-    }
-    pub fn is_zero(&self) -> bool {
-        self.linear == 0.0 && self.angular == 0.0
-    }
-}
+use vlnav_sim::Twist;
 
 /// The robot's limits the governor enforces.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -25,6 +25,9 @@ impl Twist {
     pub const fn new(linear: f64, angular: f64) -> Self {
         Self { linear, angular }
     }
+    pub fn is_zero(&self) -> bool {
+        self.linear == 0.0 && self.angular == 0.0
+    }
 }
 
 /// The platform's geometry and limits (Husky A200 defaults: `husky_control`
