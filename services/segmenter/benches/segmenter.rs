@@ -6,8 +6,8 @@ use nalgebra::Vector3;
 use vlnav_proto::v1::segmenter_service_client::SegmenterServiceClient;
 use vlnav_proto::v1::{CameraInfo, CameraIntrinsics, CameraMount, DepthImage, Image, ImageEncoding, Point3, RgbdFrame, SegmentRequest};
 use vlnav_segmenter::colour::default_classes;
-use vlnav_segmenter::geometry::{Camera, Intrinsics, Mount, Projector};
 use vlnav_segmenter::segment::{ColourBackend, FrameView, PointSettings, segment};
+use vlnav_subgoal::camera::{Camera, Intrinsics, Mount, Projector};
 
 const W: u32 = 640;
 const H: u32 = 480;
@@ -17,7 +17,7 @@ fn camera() -> Camera {
         width: W,
         height: H,
         intrinsics: Intrinsics { fx: 388.6187, fy: 388.6187, cx: 320.6609, cy: 239.7847 },
-        mount: Mount { translation: [0.3, 0.0, 0.6], roll: 0.0, pitch: 0.35, yaw: 0.0 },
+        mount: Mount { translation: Vector3::new(0.3, 0.0, 0.6), roll: 0.0, pitch: 0.35, yaw: 0.0 },
         depth_min_m: 0.4,
         depth_max_m: 12.0,
     }

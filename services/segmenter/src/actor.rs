@@ -3,8 +3,8 @@
 
 use tokio::sync::{mpsc, oneshot};
 use vlnav_runtime::actor::Mailbox;
+use vlnav_subgoal::camera::Camera;
 
-use crate::geometry::Camera;
 use crate::segment::{FrameView, PointSettings, SegmentBackend, SegmentError, SemanticLabels, Segmentation, segment};
 
 /// A request with its buffers owned (they cross threads).

@@ -4,9 +4,9 @@
 use tonic::{Request, Response, Status};
 use vlnav_proto::v1::{self, ImageEncoding, Point3, SegmentRequest, SegmentResponse, segmenter_service_server::SegmenterService};
 use vlnav_runtime::actor::Mailbox;
+use vlnav_subgoal::camera::{Camera, Intrinsics, Mount};
 
 use crate::actor::{Msg, SegmentJob};
-use crate::geometry::{Camera, Intrinsics, Mount};
 use crate::segment::{SegmentError, SemanticLabels};
 
 /// Largest accepted image side, pixels.
@@ -58,7 +58,7 @@ fn camera(frame: &v1::RgbdFrame) -> Result<Camera, Status> {
         width: c.width,
         height: c.height,
         intrinsics: Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy },
-        mount: Mount { translation: [t.x, t.y, t.z], roll: m.roll, pitch: m.pitch, yaw: m.yaw },
+        mount: Mount { translation: nalgebra::Vector3::new(t.x, t.y, t.z), roll: m.roll, pitch: m.pitch, yaw: m.yaw },
         depth_min_m: c.depth_min_m,
         depth_max_m: c.depth_max_m,
     })

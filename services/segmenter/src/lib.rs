@@ -8,12 +8,13 @@
 //! simulator's label image. An RGB-D network (ESANet-style) is one more
 //! implementation of the same trait.
 //!
-//! Layout: [`colour`], [`geometry`], [`segment`] are the pure domain;
-//! [`actor`] owns the backend; [`grpc`] is the tonic layer.
+//! Layout: [`colour`], [`segment`] are the pure domain (the pinhole and
+//! mount model is `vlnav_subgoal::camera`, shared with the subgoal estimator
+//! and the local planner); [`actor`] owns the backend; [`grpc`] is the tonic
+//! layer.
 
 pub mod actor;
 pub mod colour;
-pub mod geometry;
 pub mod grpc;
 pub mod segment;
 

@@ -6,8 +6,9 @@
 
 use std::collections::HashMap;
 
+use vlnav_subgoal::camera::{Camera, Projector};
+
 use crate::colour::{ColourClass, rgb_to_hsv};
-use crate::geometry::{Camera, Projector};
 
 /// One RGB-D frame in domain terms (sizes already checked against `camera`).
 pub struct FrameView<'a> {
@@ -221,7 +222,8 @@ pub fn segment(
 mod tests {
     use super::*;
     use crate::colour::default_classes;
-    use crate::geometry::{Intrinsics, Mount};
+    use nalgebra::Vector3;
+    use vlnav_subgoal::camera::{Intrinsics, Mount};
 
     /// A camera 1 m above the floor looking straight down (pitch +90°): every
     /// pixel sees the floor at 1 m, image up (−v) is base_link +x.
@@ -230,7 +232,7 @@ mod tests {
             width: w,
             height: h,
             intrinsics: Intrinsics { fx: 2.0, fy: 2.0, cx: (w as f64 - 1.0) / 2.0, cy: (h as f64 - 1.0) / 2.0 },
-            mount: Mount { translation: [0.0, 0.0, 1.0], roll: 0.0, pitch: std::f64::consts::FRAC_PI_2, yaw: 0.0 },
+            mount: Mount { translation: Vector3::new(0.0, 0.0, 1.0), roll: 0.0, pitch: std::f64::consts::FRAC_PI_2, yaw: 0.0 },
             depth_min_m: 0.0,
             depth_max_m: 0.0,
         }

@@ -1,6 +1,6 @@
-//! RGB-D camera geometry shared by the subgoal estimator and the local
-//! planner: pinhole back-projection, the fixed optical → body rotation and the
-//! camera's mounting pose in `base_link`.
+//! RGB-D camera geometry shared by the subgoal estimator, the local planner
+//! and the segmenter: pinhole back-projection, the fixed optical → body
+//! rotation and the camera's mounting pose in `base_link`.
 //!
 //! Conventions. Image coordinates are the pinhole's: pixel `(u, v)` of the
 //! depth image is the sample at `(u, v)`, the same system the intrinsics
@@ -10,7 +10,7 @@
 //! `base_link`: translation plus roll/pitch/yaw applied as
 //! `R = Rz(yaw)·Ry(pitch)·Rx(roll)` (the ROS fixed-axis RPY convention).
 
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::{Matrix3, Rotation3, Vector3};
 
 /// Pinhole intrinsics, pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -83,7 +83,8 @@ pub struct Camera {
     pub height: u32,
     pub intrinsics: Intrinsics,
     pub mount: Mount,
-    /// Readings outside `(depth_min_m, depth_max_m)` are invalid.
+    /// Readings outside `(depth_min_m, depth_max_m)` are invalid
+    /// ([`Projector::valid_depth`] includes the bounds and reads one ≤ 0 as unset).
     pub depth_min_m: f64,
     pub depth_max_m: f64,
 }
@@ -96,6 +97,63 @@ impl Camera {
 
     pub fn depth_is_valid(&self, z_m: f64) -> bool {
         z_m > self.depth_min_m && z_m < self.depth_max_m
+    }
+}
+
+/// Maps (pixel, depth) to `base_link` and back, with the base_link ← optical
+/// rotation and the translation precomputed for many pixels.
+///
+/// Its depth check is [`Projector::valid_depth`]: inclusive bounds, and a
+/// bound ≤ 0 is not enforced (unlike [`Camera::depth_is_valid`], which
+/// expects both bounds set and excludes them).
+#[derive(Clone, Debug)]
+pub struct Projector {
+    intrinsics: Intrinsics,
+    /// base_link ← optical rotation.
+    rotation: Matrix3<f64>,
+    translation: Vector3<f64>,
+    depth_min_m: f64,
+    depth_max_m: f64,
+}
+
+impl Projector {
+    pub fn new(camera: &Camera) -> Self {
+        let m = camera.mount;
+        let body_in_base = m.rotation().into_inner();
+        // Columns: optical x, y, z axes expressed in the body frame.
+        let optical_in_body = Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0);
+        Self {
+            intrinsics: camera.intrinsics,
+            rotation: body_in_base * optical_in_body,
+            translation: m.translation,
+            depth_min_m: camera.depth_min_m,
+            depth_max_m: camera.depth_max_m,
+        }
+    }
+
+    /// The depth in metres of a reading in millimetres, if it is a usable
+    /// return: not 0 and within the camera's range (a bound ≤ 0 is not enforced).
+    pub fn valid_depth(&self, depth_mm: u16) -> Option<f64> {
+        if depth_mm == 0 {
+            return None;
+        }
+        let d = depth_mm as f64 * 1e-3;
+        let ok = (self.depth_min_m <= 0.0 || d >= self.depth_min_m) && (self.depth_max_m <= 0.0 || d <= self.depth_max_m);
+        ok.then_some(d)
+    }
+
+    /// The `base_link` point seen at pixel `(u, v)` (pixel centres at integers) at depth `d` metres.
+    pub fn project(&self, u: f64, v: f64, d: f64) -> Vector3<f64> {
+        self.rotation * self.intrinsics.back_project(u, v, d) + self.translation
+    }
+
+    /// The pixel `(u, v)` and depth at which a `base_link` point is seen, if in front of the camera.
+    pub fn pixel_of(&self, p: Vector3<f64>) -> Option<(f64, f64, f64)> {
+        let optical = self.rotation.transpose() * (p - self.translation);
+        (optical.z > 0.0).then(|| {
+            let k = &self.intrinsics;
+            (k.fx * optical.x / optical.z + k.cx, k.fy * optical.y / optical.z + k.cy, optical.z)
+        })
     }
 }
 
@@ -194,6 +252,67 @@ mod tests {
         // Rolled 90° about x: optical x (right) → body −y → base −z.
         let m = Mount { roll: FRAC_PI_2, ..Mount::default() };
         close(&m.optical_to_base().apply(&Vector3::new(1.0, 0.0, 0.0)), [0.0, 0.0, -1.0]);
+    }
+
+    fn pitched(pitch: f64) -> Camera {
+        Camera {
+            width: 640,
+            height: 480,
+            intrinsics: Intrinsics { fx: 400.0, fy: 400.0, cx: 320.0, cy: 240.0 },
+            mount: Mount { translation: Vector3::new(0.2, 0.0, 0.5), roll: 0.0, pitch, yaw: 0.0 },
+            depth_min_m: 0.3,
+            depth_max_m: 10.0,
+        }
+    }
+
+    #[test]
+    fn the_optical_axis_of_a_level_camera_looks_forward() {
+        let p = Projector::new(&pitched(0.0));
+        let x = p.project(320.0, 240.0, 2.0);
+        assert!((x - Vector3::new(2.2, 0.0, 0.5)).norm() < 1e-12, "{x}");
+        // A pixel right of centre lies to the right (negative y), one below lies lower.
+        assert!(p.project(400.0, 240.0, 2.0).y < 0.0);
+        assert!(p.project(320.0, 300.0, 2.0).z < 0.5);
+    }
+
+    #[test]
+    fn a_camera_pitched_down_sees_the_floor_ahead() {
+        // Positive pitch about y tilts the body x axis down (REP-103).
+        let pitch = 0.5f64;
+        let p = Projector::new(&pitched(pitch));
+        let d = 0.5 / pitch.sin();
+        let x = p.project(320.0, 240.0, d);
+        assert!(x.z.abs() < 1e-9, "{x}");
+        assert!((x.x - (0.2 + d * pitch.cos())).abs() < 1e-9);
+    }
+
+    #[test]
+    fn projection_and_pixel_lookup_are_inverse() {
+        let p = Projector::new(&pitched(0.3));
+        let point = p.project(101.0, 377.0, 3.3);
+        let (u, v, d) = p.pixel_of(point).unwrap();
+        assert!((u - 101.0).abs() < 1e-9 && (v - 377.0).abs() < 1e-9 && (d - 3.3).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_projector_agrees_with_the_camera_model() {
+        let cam = Camera { mount: Mount { roll: 0.1, yaw: -0.4, ..pitched(0.3).mount }, ..pitched(0.3) };
+        let p = Projector::new(&cam);
+        for (u, v, d) in [(0.0, 0.0, 1.0), (101.0, 377.0, 3.3), (639.0, 479.0, 7.5)] {
+            assert!((p.project(u, v, d) - cam.pixel_to_base(u, v, d)).norm() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn depth_validity_follows_the_camera_range() {
+        let p = Projector::new(&pitched(0.0));
+        assert_eq!(p.valid_depth(0), None);
+        assert_eq!(p.valid_depth(200), None);
+        assert_eq!(p.valid_depth(11_000), None);
+        assert_eq!(p.valid_depth(1500), Some(1.5));
+        // A bound ≤ 0 is not enforced.
+        let open = Projector::new(&Camera { depth_min_m: 0.0, depth_max_m: 0.0, ..pitched(0.0) });
+        assert_eq!((open.valid_depth(1), open.valid_depth(65_535)), (Some(0.001), Some(65.535)));
     }
 
     #[test]
