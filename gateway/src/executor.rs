@@ -391,6 +391,7 @@ impl MissionRun {
         tracing::debug!(
             mission = %self.mission_id, step = self.index, stamp, ?status, distance = plan.distance_to_goal,
             heading_error = plan.heading_error, free_paths = plan.free_paths, x = pose.x, y = pose.y, theta = pose.theta,
+            v = plan.cmd.map_or(0.0, |c| c.linear), w = plan.cmd.map_or(0.0, |c| c.angular), path = plan.path_id,
             "drive"
         );
         if status == LocalPlanStatus::Reached {

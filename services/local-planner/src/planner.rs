@@ -343,7 +343,13 @@ impl Planner {
         let goal_inside = goal_dist / scale < crop_radius;
         let k_goal = Path::index_at_radius(goal_dist / scale + 1e-9).max(1);
         let k_look = Path::index_at_radius(self.params.look_ahead_m / scale + 1e-9).clamp(1, k_end);
-        let cost_n = ((range.min(scale * PATH_RADIUS)) / 0.1 + 1e-9).floor() as usize;
+        // Obstacles are costed along the path only as far as they can block
+        // it: up to the goal plus `goal_clear_range`. Beyond the goal (the
+        // target itself when stopping before a landmark) they would push
+        // every path aside and the robot would hunt left and right short of
+        // a goal it can reach straight on.
+        let cost_range = range.min(scale * PATH_RADIUS).min(goal_dist + self.params.goal_clear_range);
+        let cost_n = (cost_range / 0.1 + 1e-9).floor() as usize;
         let cost_n = cost_n.min(lvl.cost_samples);
         let all = PathSet::all();
         let mut best: Option<(f64, usize, usize)> = None;

@@ -220,6 +220,18 @@ fn a_detour_that_points_away_from_the_goal_is_not_undone_by_rotating_back() {
 }
 
 #[test]
+fn a_goal_one_metre_before_a_landmark_is_approached_straight_on() {
+    // "Stop 1 m before the suitcase": the goal is 1 m short of the box, so
+    // the box lies just beyond the goal. It must not push the paths aside.
+    let mut world = World::default();
+    world.add_box(1.92, -0.3, 2.22, 0.3, 0.7);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.13), goal_at(1.07, -0.03, 0.25), 100);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "stopped at {:?}", run.poses.last());
+    assert!(run.outputs.len() < 30, "{} frames for 1 m", run.outputs.len());
+    assert!(run.poses.iter().all(|p| p.y.abs() < 0.25), "no weaving");
+}
+
+#[test]
 fn rotation_only_goal_turns_until_within_yaw_tolerance() {
     let world = World::default();
     let goal = GoalSpec { pose: Pose2::new(0.0, 0.0, -1.2), position_tolerance: 0.5, yaw_tolerance: 0.2, rotation_only: true };
