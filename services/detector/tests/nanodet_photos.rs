@@ -84,7 +84,7 @@ async fn cyclists_astronaut_cup_and_cat() {
     let results = futures::future::join_all(calls).await;
     assert_eq!(results[0], results[3]);
     assert!(of_class(&results[1], CAT).len() == 1 && of_class(&results[2], PERSON).len() >= 2);
-    svc.stop().await;
+    svc.stop().await.unwrap();
 }
 
 /// Reads a little-endian float32 C-order array from a `.npy` file.
@@ -137,7 +137,7 @@ async fn motorcycle_depth_from_the_stereo_ground_truth() {
     frame.depth = Some(v1::DepthImage { width: w as u32, height: h as u32, data_mm: depth_mm.clone() });
     let mut svc = start(nanodet_options()).await;
     let boxes = svc.client.detect(request(frame, vec![MOTORCYCLE], 0.3)).await.unwrap().into_inner().boxes;
-    svc.stop().await;
+    svc.stop().await.unwrap();
     let moto = boxes.first().unwrap_or_else(|| panic!("no motorcycle: {boxes:?}"));
     assert_eq!(moto.class_id, MOTORCYCLE);
     // The motorcycle spans most of the frame (hand-checked extent ≈ x 95–685, y 75–450).

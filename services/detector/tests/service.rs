@@ -81,7 +81,7 @@ async fn simulation_backend_reads_label_images() {
     frame.depth.as_mut().unwrap().width = 8;
     let e = svc.client.detect(request(frame, vec![], 0.0)).await.unwrap_err();
     assert!(e.code() == Code::InvalidArgument && e.message().contains("frame.depth"), "{}", e.message());
-    svc.stop().await;
+    svc.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -97,8 +97,8 @@ async fn simulated_misses_and_jitter_reproduce() {
         seen += ra.len();
     }
     assert!((15..40).contains(&seen), "{seen} of 40 seen at a 30 % miss rate");
-    a.stop().await;
-    b.stop().await;
+    a.stop().await.unwrap();
+    b.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -141,7 +141,7 @@ async fn yolov8_serves_generated_weights() {
         assert!([0, 2].contains(&b.class_id) && b.score >= 0.01);
         assert!(b.x_min >= 0.0 && b.x_max <= 64.0 && b.y_min >= 0.0 && b.y_max <= 48.0, "{b:?}");
     }
-    svc.stop().await;
+    svc.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -178,5 +178,5 @@ async fn bad_images_get_invalid_argument_with_a_clear_message() {
     // A tiny valid image is fine.
     let resp = svc.client.detect(request(ok(), vec![], 0.0)).await.unwrap().into_inner();
     assert_eq!(resp.backend, "nanodet");
-    svc.stop().await;
+    svc.stop().await.unwrap();
 }

@@ -5,34 +5,18 @@ use nalgebra::Vector3;
 use tonic::Code;
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::local_planner_service_client::LocalPlannerServiceClient;
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::{self, Connected};
 use vlnav_subgoal::camera::{Camera, Intrinsics, Mount, encode_depth_mm};
 
 const W: u32 = 640;
 const H: u32 = 480;
 const STRAIGHT_PATH: i32 = 3 * 49 + 24;
 
-struct Server {
-    client: LocalPlannerServiceClient<tonic::transport::Channel>,
-    shutdown: CancellationToken,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        self.shutdown.cancel();
-    }
-}
-
-async fn start() -> Server {
+async fn start() -> Connected<LocalPlannerServiceClient<tonic::transport::Channel>> {
     let cfg = ServerConfig::default();
     let set = vlnav_local_planner::services(&vlnav_local_planner::Options::default(), &cfg).await.unwrap();
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let shutdown = CancellationToken::new();
-    let token = shutdown.clone();
-    tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, token).await.unwrap() });
-    let client = LocalPlannerServiceClient::connect(format!("http://{addr}")).await.unwrap();
-    Server { client, shutdown }
+    testing::start_client(&cfg, set, LocalPlannerServiceClient::new).await.unwrap()
 }
 
 fn camera() -> Camera {

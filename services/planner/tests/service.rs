@@ -2,24 +2,20 @@
 
 mod common;
 
-use tokio::net::TcpListener;
 use tonic::Code;
 use vlnav_planner::Options;
 use vlnav_proto::v1::planner_service_client::PlannerServiceClient;
 use vlnav_proto::v1::{self as pb, plan_response::Outcome};
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::TestServer;
 
-async fn start() -> (PlannerServiceClient<vlnav_runtime::client::TracedChannel>, CancellationToken) {
+async fn start() -> (PlannerServiceClient<vlnav_runtime::client::TracedChannel>, TestServer) {
     let opts = Options { models_dir: common::models_dir(), ..Options::default() };
     let cfg = ServerConfig::default();
     let set = vlnav_planner::services(&opts, &cfg).await.expect("planner services start");
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let token = CancellationToken::new();
-    let t = token.clone();
-    tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, t).await.unwrap() });
-    let channel = vlnav_runtime::client::channel(&format!("http://{addr}")).expect("channel");
-    (PlannerServiceClient::new(channel), token)
+    let server = vlnav_runtime::testing::start(&cfg, set).await.unwrap();
+    let channel = server.traced_channel().expect("channel");
+    (PlannerServiceClient::new(channel), server)
 }
 
 fn plan_of(r: &pb::PlanResponse) -> &pb::ActionPlan {
@@ -31,7 +27,7 @@ fn plan_of(r: &pb::PlanResponse) -> &pb::ActionPlan {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn plans_the_papers_example_over_grpc() {
-    let (mut c, stop) = start().await;
+    let (mut c, server) = start().await;
     let r = c
         .plan(pb::PlanRequest {
             instruction: "Buddy take left turn, move 4 m ahead, then find the standing person to reach close to it, In your right you may see the visitor chair follow it. Finally go at spot where bicycle is standing.".into(),
@@ -51,12 +47,12 @@ async fn plans_the_papers_example_over_grpc() {
     let v = c.validate_plan(pb::ValidatePlanRequest { plan_json: r.plan_json.clone() }).await.unwrap().into_inner();
     assert!(v.valid, "{:?}", v.errors);
     assert_eq!(v.plan.as_ref(), Some(p));
-    stop.cancel();
+    server.stop().await.unwrap();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn asks_for_ungroundable_targets_and_rejects_bad_input() {
-    let (mut c, stop) = start().await;
+    let (mut c, server) = start().await;
     let r = c.plan(pb::PlanRequest { instruction: "go to the pharmacy".into(), backend: String::new() }).await.unwrap().into_inner();
     match r.outcome {
         Some(Outcome::Clarification(q)) => assert!(q.reason.contains("pharmacy"), "{q:?}"),
@@ -81,12 +77,12 @@ async fn asks_for_ungroundable_targets_and_rejects_bad_input() {
 
     let r = c.plan(pb::PlanRequest { instruction: "Geh zum Stuhl und dreh dich nach links, bitte schnell".into(), backend: String::new() }).await.unwrap().into_inner();
     assert!(matches!(r.outcome, Some(Outcome::Clarification(_))), "{r:?}");
-    stop.cancel();
+    server.stop().await.unwrap();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replans_after_a_failed_find() {
-    let (mut c, stop) = start().await;
+    let (mut c, server) = start().await;
     let r = c.plan(pb::PlanRequest { instruction: "move 2 m ahead, find the visitor chair, then find the bicycle".into(), backend: String::new() }).await.unwrap().into_inner();
     let plan = plan_of(&r).clone();
     let r = c
@@ -114,12 +110,12 @@ async fn replans_after_a_failed_find() {
     assert!(e.message().contains("failed_step"), "{}", e.message());
     let e = c.replan(pb::ReplanRequest { plan: None, answer: "skip".into(), ..Default::default() }).await.unwrap_err();
     assert!(e.message().contains("plan"), "{}", e.message());
-    stop.cancel();
+    server.stop().await.unwrap();
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn serves_the_schema_and_validates_plans() {
-    let (mut c, stop) = start().await;
+    let (mut c, server) = start().await;
     let s = c.get_plan_schema(pb::GetPlanSchemaRequest {}).await.unwrap().into_inner();
     let schema: serde_json::Value = serde_json::from_str(&s.json_schema).unwrap();
     assert_eq!(schema["$schema"], "https://json-schema.org/draft/2020-12/schema");
@@ -143,7 +139,7 @@ async fn serves_the_schema_and_validates_plans() {
     assert_eq!(long.plan.unwrap().steps.iter().map(|s| s.f_dist).collect::<Vec<_>>(), vec![7.5, 7.5]);
     let e = c.validate_plan(pb::ValidatePlanRequest { plan_json: " ".into() }).await.unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument);
-    stop.cancel();
+    server.stop().await.unwrap();
 }
 
 #[tokio::test]

@@ -122,5 +122,5 @@ async fn the_service_names_enrolled_people_in_the_original_photos() {
         println!("bike.jpg: box {} → best {:?} {:.3} matched={}", id.box_index, id.name, id.similarity, id.matched);
         assert!(!id.matched, "unenrolled rider {} matched as {:?} at {:.3}", id.box_index, id.name, id.similarity);
     }
-    running.stop().await;
+    running.stop().await.unwrap();
 }

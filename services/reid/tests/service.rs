@@ -101,7 +101,7 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
     let err = s.client.identify(IdentifyRequest { frame: Some(frame), boxes: vec![bx(0.0, 0.0, 5.0, 5.0)], threshold: 0.0, name: String::new() }).await.unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("frame.labels.instance_ids"), "{}", err.message());
-    s.stop().await;
+    s.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -120,7 +120,7 @@ async fn an_empty_gallery_unknown_names_and_embeddings_on_sim_are_state_errors()
     assert!(err.message().contains("carl"));
     let err = s.client.embed(EmbedRequest { images: vec![rgb8(2, 2)] }).await.unwrap_err();
     assert_eq!(err.code(), Code::FailedPrecondition);
-    s.stop().await;
+    s.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -168,7 +168,7 @@ async fn the_simulation_backend_reads_identities_under_each_box() {
     let err = s.client.identify(IdentifyRequest { frame: Some(frame), boxes: vec![bx(0.0, 0.0, 4.0, 4.0)], threshold: 0.0, name: String::new() }).await.unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("frame.labels"));
-    s.stop().await;
+    s.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -178,7 +178,7 @@ async fn the_gallery_survives_a_restart_and_removal_persists() {
     s.client.enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![rgb8(2, 2), rgb8(3, 3)] }).await.unwrap();
     let r = s.client.enroll_person(EnrollPersonRequest { name: " bo ".into(), images: vec![rgb8(2, 2)] }).await.unwrap().into_inner();
     assert_eq!((r.name.as_str(), r.embeddings, r.gallery_size), ("bo", 1, 2));
-    s.stop().await;
+    s.stop().await.unwrap();
 
     let mut s = start(&sim_opts(dir.path())).await;
     let people = s.client.list_gallery(ListGalleryRequest {}).await.unwrap().into_inner().people;
@@ -186,12 +186,12 @@ async fn the_gallery_survives_a_restart_and_removal_persists() {
     assert_eq!(got, vec![("ana", 2), ("bo", 1)]);
     let left = s.client.remove_person(RemovePersonRequest { name: "ana".into() }).await.unwrap().into_inner().people;
     assert_eq!(left.len(), 1);
-    s.stop().await;
+    s.stop().await.unwrap();
 
     let mut s = start(&sim_opts(dir.path())).await;
     let people = s.client.list_gallery(ListGalleryRequest {}).await.unwrap().into_inner().people;
     assert_eq!(people.iter().map(|p| p.name.as_str()).collect::<Vec<_>>(), vec!["bo"]);
-    s.stop().await;
+    s.stop().await.unwrap();
     assert!(dir.path().join("gallery-sim.json").is_file());
 }
 
@@ -226,5 +226,5 @@ async fn embed_returns_unit_mobilenetv2_vectors() {
     let frame = RgbdFrame { rgb: Some(img(3)), ..Default::default() };
     let err = s.client.identify(IdentifyRequest { frame: Some(frame), boxes: vec![bx(0.0, 0.0, 4.0, 8.0)], threshold: 0.0, name: String::new() }).await.unwrap_err();
     assert_eq!(err.code(), Code::FailedPrecondition);
-    s.stop().await;
+    s.stop().await.unwrap();
 }

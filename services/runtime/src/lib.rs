@@ -5,12 +5,15 @@
 //!   telemetry and graceful shutdown;
 //! - [`telemetry`]: tracing + OpenTelemetry (OTLP, W3C trace context);
 //! - [`client`]: channels whose requests carry the caller's trace context;
-//! - [`actor`]: the request/reply helper every service actor uses.
+//! - [`actor`]: the request/reply helper every service actor uses;
+//! - [`testing`]: a service set served on an ephemeral loopback port, for
+//!   integration tests.
 
 pub mod actor;
 pub mod client;
 pub mod server;
 pub mod telemetry;
+pub mod testing;
 
 pub use server::{ServerConfig, ServiceSet, ports, serve, serve_main, shutdown_signal};
 pub use tokio_util::sync::CancellationToken;

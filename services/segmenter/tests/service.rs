@@ -3,14 +3,14 @@
 //! a wall carrying a red poster above the floor.
 
 use nalgebra::{Rotation3, Vector3};
-use tokio::net::TcpListener;
 use tonic::Code;
 use vlnav_proto::v1::segmenter_service_client::SegmenterServiceClient;
 use vlnav_proto::v1::{
     CameraInfo, CameraIntrinsics, CameraMount, DepthImage, Image, ImageEncoding, LabelImage, LabelInstance, Point3,
     RgbdFrame, SegmentRequest,
 };
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::{self, Connected};
 
 const W: u32 = 640;
 const H: u32 = 480;
@@ -108,25 +108,11 @@ fn frame(rgb: Vec<u8>, depth: Vec<u8>) -> RgbdFrame {
     }
 }
 
-struct Running {
-    client: SegmenterServiceClient<tonic::transport::Channel>,
-    shutdown: CancellationToken,
-}
-
-async fn start(opts: vlnav_segmenter::Options) -> Running {
+async fn start(opts: vlnav_segmenter::Options) -> Connected<SegmenterServiceClient<tonic::transport::Channel>> {
     let cfg = ServerConfig::default();
     let set = vlnav_segmenter::services(&opts, &cfg).await.unwrap();
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let shutdown = CancellationToken::new();
-    let token = shutdown.clone();
-    tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, token).await });
-    let client = SegmenterServiceClient::connect(format!("http://{addr}"))
-        .await
-        .unwrap()
-        .max_decoding_message_size(64 << 20)
-        .max_encoding_message_size(64 << 20);
-    Running { client, shutdown }
+    let make = |ch| SegmenterServiceClient::new(ch).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
+    testing::start_client(&cfg, set, make).await.unwrap()
 }
 
 #[tokio::test]
@@ -182,7 +168,7 @@ async fn a_red_floor_zone_becomes_a_wall_of_points_where_it_lies_and_the_poster_
     // Stride 2 keeps about a quarter of the zone's pixels, three points each.
     let expect = confusion[0][1] as f64 / 4.0 * 3.0;
     assert!((n - expect).abs() < 0.1 * expect, "{n} points for {expect:.0} expected");
-    s.shutdown.cancel();
+    s.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -201,7 +187,7 @@ async fn class_selection_stride_and_mask_flag_are_honoured() {
     let err = client.segment(SegmentRequest { classes: vec!["lava".into()], ..req }).await.unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("classes[0]") && err.message().contains("restricted_zone"), "{}", err.message());
-    s.shutdown.cancel();
+    s.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -238,7 +224,7 @@ async fn malformed_frames_get_invalid_argument_naming_the_field() {
     let req = with(&|f| f.rgb = Some(Image { width: 0, height: 0, encoding: ImageEncoding::Png as i32, data: png.get_ref().clone() }));
     let r = client.segment(req).await.unwrap().into_inner();
     assert!(r.class_pixels[0] > 2000);
-    s.shutdown.cancel();
+    s.stop().await.unwrap();
 }
 
 #[tokio::test]
@@ -282,7 +268,7 @@ async fn the_simulation_backend_reads_semantics_from_the_label_image() {
     let err = client.segment(SegmentRequest { frame: Some(f), classes: vec![], return_mask: false, point_stride: 0 }).await.unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("frame.labels"));
-    s.shutdown.cancel();
+    s.stop().await.unwrap();
 }
 
 #[tokio::test]

@@ -5,7 +5,8 @@ use std::f64::consts::FRAC_PI_2;
 use tonic::Code;
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::subgoal_service_client::SubgoalServiceClient;
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::{self, Connected};
 use vlnav_subgoal::camera::encode_depth_mm;
 
 const W: u32 = 640;
@@ -14,27 +15,10 @@ const FX: f64 = 388.6187;
 const CX: f64 = 320.6609;
 const CY: f64 = 239.7847;
 
-struct Server {
-    client: SubgoalServiceClient<tonic::transport::Channel>,
-    shutdown: CancellationToken,
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        self.shutdown.cancel();
-    }
-}
-
-async fn start() -> Server {
+async fn start() -> Connected<SubgoalServiceClient<tonic::transport::Channel>> {
     let cfg = ServerConfig::default();
     let set = vlnav_subgoal::services(&vlnav_subgoal::Options::default(), &cfg).await.unwrap();
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let shutdown = CancellationToken::new();
-    let token = shutdown.clone();
-    tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, token).await.unwrap() });
-    let client = SubgoalServiceClient::connect(format!("http://{addr}")).await.unwrap();
-    Server { client, shutdown }
+    testing::start_client(&cfg, set, SubgoalServiceClient::new).await.unwrap()
 }
 
 fn pose(x: f64, y: f64, theta: f64) -> pb::Pose2D {

@@ -3,9 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
-use tokio::net::TcpListener;
 use vlnav_proto::v1::{self, detector_service_client::DetectorServiceClient};
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::{self, Connected};
 
 /// `$VLNAV_MODELS_DIR`, else the workspace's `models/`.
 pub fn models_dir() -> PathBuf {
@@ -21,34 +21,14 @@ pub fn require(relative: &str) -> PathBuf {
     p
 }
 
-pub struct Running {
-    pub client: DetectorServiceClient<tonic::transport::Channel>,
-    pub shutdown: CancellationToken,
-    pub task: tokio::task::JoinHandle<anyhow::Result<()>>,
-}
-
-impl Running {
-    pub async fn stop(self) {
-        self.shutdown.cancel();
-        self.task.await.unwrap().unwrap();
-    }
-}
+pub type Running = Connected<DetectorServiceClient<tonic::transport::Channel>>;
 
 /// Starts the detector on 127.0.0.1:0 and connects a client.
 pub async fn start(opts: vlnav_detector::Options) -> Running {
     let cfg = ServerConfig::default();
     let set = vlnav_detector::services(&opts, &cfg).await.expect("detector services");
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let shutdown = CancellationToken::new();
-    let token = shutdown.clone();
-    let task = tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, token).await });
-    let client = DetectorServiceClient::connect(format!("http://{addr}"))
-        .await
-        .unwrap()
-        .max_decoding_message_size(64 << 20)
-        .max_encoding_message_size(64 << 20);
-    Running { client, shutdown, task }
+    let make = |ch| DetectorServiceClient::new(ch).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
+    testing::start_client(&cfg, set, make).await.unwrap()
 }
 
 pub fn nanodet_options() -> vlnav_detector::Options {

@@ -7,12 +7,12 @@ use std::path::PathBuf;
 use std::process::Command;
 use std::time::Duration;
 
-use tokio::net::TcpListener;
 use tonic::transport::Channel;
 use vlnav_ingress::Options;
 use vlnav_proto::v1::ingress_service_client::IngressServiceClient;
 use vlnav_proto::v1::{AudioChunk, AudioFormat};
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::{self, Connected};
 
 /// The instructions spoken in the tests: the paper's two worked examples
 /// (Case 1 and Case 2) and the other instruction kinds it names.
@@ -60,27 +60,12 @@ pub fn speak(text: &str) -> Vec<u8> {
 }
 
 /// A running ingress server and a client connected to it.
-pub struct Served {
-    pub client: IngressServiceClient<Channel>,
-    pub shutdown: CancellationToken,
-}
-
-impl Drop for Served {
-    fn drop(&mut self) {
-        self.shutdown.cancel();
-    }
-}
+pub type Served = Connected<IngressServiceClient<Channel>>;
 
 pub async fn serve(opts: Options) -> Served {
     let cfg = ServerConfig::default();
     let services = vlnav_ingress::services(&opts, &cfg).await.expect("ingress services start");
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let shutdown = CancellationToken::new();
-    let token = shutdown.clone();
-    tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, services, token).await });
-    let client = IngressServiceClient::connect(format!("http://{addr}")).await.expect("connect to ingress");
-    Served { client, shutdown }
+    testing::start_client(&cfg, services, IngressServiceClient::new).await.expect("ingress server starts and accepts a client")
 }
 
 /// `data` as a stream of chunks of at most `chunk` bytes; the first names the format.

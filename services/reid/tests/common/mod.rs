@@ -3,9 +3,9 @@
 
 use std::path::PathBuf;
 
-use tokio::net::TcpListener;
 use vlnav_proto::v1::reid_service_client::ReidServiceClient;
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::{self, Connected};
 
 /// `$VLNAV_MODELS_DIR`, or the workspace's `models/`.
 pub fn models_dir() -> PathBuf {
@@ -48,33 +48,13 @@ pub mod boxes {
 }
 
 /// A running server and a client connected to it.
-pub struct Running {
-    pub client: ReidServiceClient<tonic::transport::Channel>,
-    pub shutdown: CancellationToken,
-    pub task: tokio::task::JoinHandle<anyhow::Result<()>>,
-}
-
-impl Running {
-    pub async fn stop(self) {
-        self.shutdown.cancel();
-        self.task.await.unwrap().unwrap();
-    }
-}
+pub type Running = Connected<ReidServiceClient<tonic::transport::Channel>>;
 
 pub async fn start(opts: &vlnav_reid::Options) -> Running {
     let cfg = ServerConfig::default();
     let set = vlnav_reid::services(opts, &cfg).await.expect("services");
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let shutdown = CancellationToken::new();
-    let token = shutdown.clone();
-    let task = tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, token).await });
-    let client = ReidServiceClient::connect(format!("http://{addr}"))
-        .await
-        .unwrap()
-        .max_decoding_message_size(64 << 20)
-        .max_encoding_message_size(64 << 20);
-    Running { client, shutdown, task }
+    let make = |ch| ReidServiceClient::new(ch).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
+    testing::start_client(&cfg, set, make).await.unwrap()
 }
 
 /// Deterministic photometric and geometric augmentation of a box crop:
