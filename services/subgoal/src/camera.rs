@@ -23,6 +23,7 @@ pub struct Intrinsics {
 
 impl Intrinsics {
     /// The point in the optical frame seen at pixel `(u, v)` at depth `z` (m).
+    #[inline]
     pub fn back_project(&self, u: f64, v: f64, z: f64) -> Vector3<f64> {
         Vector3::new((u - self.cx) * z / self.fx, (v - self.cy) * z / self.fy, z)
     }
@@ -133,6 +134,7 @@ impl Projector {
 
     /// The depth in metres of a reading in millimetres, if it is a usable
     /// return: not 0 and within the camera's range (a bound ≤ 0 is not enforced).
+    #[inline]
     pub fn valid_depth(&self, depth_mm: u16) -> Option<f64> {
         if depth_mm == 0 {
             return None;
@@ -143,11 +145,13 @@ impl Projector {
     }
 
     /// The `base_link` point seen at pixel `(u, v)` (pixel centres at integers) at depth `d` metres.
+    #[inline]
     pub fn project(&self, u: f64, v: f64, d: f64) -> Vector3<f64> {
         self.rotation * self.intrinsics.back_project(u, v, d) + self.translation
     }
 
     /// The pixel `(u, v)` and depth at which a `base_link` point is seen, if in front of the camera.
+    #[inline]
     pub fn pixel_of(&self, p: Vector3<f64>) -> Option<(f64, f64, f64)> {
         let optical = self.rotation.transpose() * (p - self.translation);
         (optical.z > 0.0).then(|| {
