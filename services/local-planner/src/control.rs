@@ -16,7 +16,9 @@
 //!   chosen path crosses 0.5 m from the robot; `ω = 7.5·bearing`, clamped to
 //!   the yaw-rate limit and to what turns onto the bearing within one frame
 //!   period (at 5 fps the CMU gain alone would overshoot); speed ramps up by
-//!   `max_accel·dt` only while the bearing is below 0.1 rad, otherwise down,
+//!   `max_accel·dt` only while the bearing is below 0.2 rad (CMU's 0.1 is for
+//!   100 Hz: at 5 fps a lagging turn swung the robot ±0.13 rad between two
+//!   near-equal paths and it never moved), otherwise down,
 //!   and slows within `slow_down_distance` of the goal.
 //! - Obstacle memory: the camera sees ±43°, so an obstacle leaves the view as
 //!   soon as the robot turns away from it, and a plan made without it would
@@ -74,7 +76,7 @@ impl Default for FollowParams {
             max_speed: 1.0,
             max_yaw_rate: 1.57,
             max_accel: 1.0,
-            align_threshold: 0.1,
+            align_threshold: 0.2,
             rotate_threshold: 1.0,
             rerotate_threshold: 1.9,
             rotate_exit: 0.3,
