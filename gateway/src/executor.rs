@@ -168,8 +168,10 @@ pub fn after_look(turn: u32, leg: u32, p: &ExecutorParams) -> ExplorePlan {
 enum Explore {
     Idle,
     /// `since`: the stamp the turn or leg began.
-    Turn { goal: Goal, turn: u32, leg: u32, since: f64 },
-    Look { frames_left: u32, turn: u32, leg: u32 },
+    /// `origin`: the pose the look-around began at; its turns are counted
+    /// from it, so each turn's tolerance does not shrink the look-around.
+    Turn { goal: Goal, turn: u32, leg: u32, since: f64, origin: Pose2D },
+    Look { frames_left: u32, turn: u32, leg: u32, origin: Pose2D },
     Search { goal: Goal, leg: u32, since: f64 },
 }
 
@@ -188,9 +190,6 @@ struct FindRun {
     last_seen: Option<f64>,
     follow_until: Option<f64>,
     explore: Explore,
-    /// The pose a look-around began at: its turns are counted from it, so
-    /// each turn's tolerance does not shrink the look-around.
-    scan_origin: Pose2D,
 }
 
 enum StepRun {
@@ -501,7 +500,6 @@ impl MissionRun {
                     last_seen: None,
                     follow_until: None,
                     explore: Explore::Idle,
-                    scan_origin: Pose2D::default(),
                 })),
                 ActionKind::Unspecified => {
                     return Err(StageError {
@@ -834,31 +832,29 @@ impl MissionRun {
         };
         let Some(Active { run: StepRun::Find(f), .. }) = self.step.as_mut() else { unreachable!() };
         let state = std::mem::replace(&mut f.explore, Explore::Idle);
-        if matches!(state, Explore::Idle) || matches!(&state, Explore::Search { .. }) {
-            f.scan_origin = *pose;
-        }
-        let origin = f.scan_origin;
         let (next, twist) = match state {
             Explore::Idle => {
-                let goal = turn_goal(ctx, origin, 0).await?;
+                let goal = turn_goal(ctx, *pose, 0).await?;
                 self.emit(ctx, stamp, Kind::Exploring(Exploring { index, phase: "scan".into(), attempt: 1 }), |_| {});
-                (Explore::Turn { goal, turn: 0, leg: 0, since: stamp }, zero())
+                (Explore::Turn { goal, turn: 0, leg: 0, since: stamp, origin: *pose }, zero())
             }
-            Explore::Turn { goal, turn, leg, since } => {
+            Explore::Turn { goal, turn, leg, since, origin } => {
                 let plan = self.local_plan(ctx, frame, &goal, no_go).await?;
                 // A scan turn that does not finish in time (a wheel stalled
                 // short of the heading) looks from where it got to.
                 if plan.status == LocalPlanStatus::Reached as i32 || stamp - since >= SCAN_TURN_LIMIT_S {
-                    (Explore::Look { frames_left: params.look_frames, turn, leg }, zero())
+                    (Explore::Look { frames_left: params.look_frames, turn, leg, origin }, zero())
                 } else {
-                    (Explore::Turn { goal, turn, leg, since }, plan.cmd.unwrap_or_default())
+                    (Explore::Turn { goal, turn, leg, since, origin }, plan.cmd.unwrap_or_default())
                 }
             }
-            Explore::Look { frames_left, turn, leg } if frames_left > 1 => {
-                (Explore::Look { frames_left: frames_left - 1, turn, leg }, zero())
+            Explore::Look { frames_left, turn, leg, origin } if frames_left > 1 => {
+                (Explore::Look { frames_left: frames_left - 1, turn, leg, origin }, zero())
             }
-            Explore::Look { turn, leg, .. } => match after_look(turn, leg, params) {
-                ExplorePlan::Turn(t) => (Explore::Turn { goal: turn_goal(ctx, origin, t).await?, turn: t, leg, since: stamp }, zero()),
+            Explore::Look { turn, leg, origin, .. } => match after_look(turn, leg, params) {
+                ExplorePlan::Turn(t) => {
+                    (Explore::Turn { goal: turn_goal(ctx, origin, t).await?, turn: t, leg, since: stamp, origin }, zero())
+                }
                 ExplorePlan::Search(l) => {
                     let goal = ctx
                         .pipeline
@@ -896,7 +892,7 @@ impl MissionRun {
                 let overdue = stamp - since >= params.search_leg_m / SEARCH_MIN_SPEED + SCAN_TURN_LIMIT_S;
                 if overdue || matches!(status, LocalPlanStatus::Reached | LocalPlanStatus::Blocked | LocalPlanStatus::NoProgress) {
                     self.emit(ctx, stamp, Kind::Exploring(Exploring { index, phase: "scan".into(), attempt: leg + 1 }), |_| {});
-                    (Explore::Turn { goal: turn_goal(ctx, origin, 0).await?, turn: 0, leg, since: stamp }, zero())
+                    (Explore::Turn { goal: turn_goal(ctx, *pose, 0).await?, turn: 0, leg, since: stamp, origin: *pose }, zero())
                 } else {
                     (Explore::Search { goal, leg, since }, plan.cmd.unwrap_or_default())
                 }

@@ -8,6 +8,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use vlnav_e2e::{CASE_2, TestStack};
+use vlnav_ingress::wer::word_error_rate;
 use vlnav_proto::v1::{
     ActionStep, Audio, AudioFormat, SubmitMissionRequest, mission_event::Kind, submit_mission_request::Instruction,
     submit_mission_response::Outcome,
@@ -41,31 +42,6 @@ fn speak(text: &str) -> Vec<u8> {
     std::fs::read(path).unwrap()
 }
 
-fn words(s: &str) -> Vec<String> {
-    s.to_lowercase()
-        .replace("mr.", "mister")
-        .split(|c: char| !c.is_alphanumeric())
-        .filter(|w| !w.is_empty())
-        .map(str::to_string)
-        .collect()
-}
-
-/// Word error rate: word-level edit distance over the reference length.
-fn wer(reference: &str, hypothesis: &str) -> f64 {
-    let (r, h) = (words(reference), words(hypothesis));
-    let mut d: Vec<usize> = (0..=h.len()).collect();
-    for i in 1..=r.len() {
-        let mut prev = d[0];
-        d[0] = i;
-        for j in 1..=h.len() {
-            let cur = d[j];
-            d[j] = if r[i - 1] == h[j - 1] { prev } else { 1 + prev.min(d[j]).min(d[j - 1]) };
-            prev = cur;
-        }
-    }
-    d[h.len()] as f64 / r.len().max(1) as f64
-}
-
 /// What must agree between the typed and the spoken plan.
 fn essence(steps: &[ActionStep]) -> Vec<(i32, i32, i64, i64, String)> {
     steps
@@ -93,7 +69,7 @@ async fn spoken_instructions_plan_like_typed_ones_through_the_gateway() {
             .await
             .unwrap()
             .into_inner();
-        let w = wer(said, &spoken.transcript);
+        let w = word_error_rate(said, &spoken.transcript);
         total += w;
         report += &format!("  {w:.2}  {text}\n        → {}\n", spoken.transcript);
         assert!(w <= 0.35, "transcript too far from '{text}': '{}' (WER {w:.2})", spoken.transcript);
