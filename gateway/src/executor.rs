@@ -3,9 +3,17 @@
 //!
 //! - MOVE: subgoal estimator → goal relative to the anchor (the odometry pose
 //!   re-anchored at the last reached subgoal) → local planner until reached.
+//!   After a reached MOVE the anchor keeps that MOVE's heading (its course),
+//!   not the heading the robot arrived with: "move 10 m, then turn left 30°"
+//!   turns from the direction of the first leg, and a swerve or a settle at
+//!   the end of that leg would otherwise rotate everything after it.
 //! - FIND: detector (+ ReID for a named person) → subgoal estimator (fused
 //!   target) → confirmed after `confirm_frames` consecutive sightings → local
-//!   planner until within d_s. Unseen for `unseen_frames` → bounded
+//!   planner until within d_s. Once a fixed target is confirmed, each frame's
+//!   box is the one where the fused target projects (camera model, odometry
+//!   pose), not the one nearest last frame's box: a turning robot shifts the
+//!   image by tens of pixels a frame, and a second chair swinging into view
+//!   must not take the first one's place. Unseen for `unseen_frames` → bounded
 //!   exploration (scan: turn 30°, look; then forward search legs) → a
 //!   clarification question → the user's answer → the planner revises the
 //!   remaining plan.
@@ -185,6 +193,8 @@ struct FindRun {
     streak: u32,
     confirmed: bool,
     goal: Option<Goal>,
+    /// The fused target (odom) of the latest accepted observation.
+    fused: Option<Point3>,
     last_center: Option<(f32, f32)>,
     unseen: u32,
     last_seen: Option<f64>,
@@ -216,6 +226,9 @@ pub struct MissionRun {
     step: Option<Active>,
     start_pose: Option<Pose2D>,
     last_goal: Option<Pose2D>,
+    /// The heading (odom) of the last reached MOVE's goal while the steps
+    /// since are MOVEs: the course the next MOVE turns from.
+    course: Option<f64>,
     metrics: MetricsAcc,
     replans: u32,
     /// The question waiting for an answer, and the failure that caused it.
@@ -243,6 +256,49 @@ fn depth_only(f: &RgbdFrame) -> RgbdFrame {
     }
 }
 
+/// Where a MOVE starts from: the robot's position, facing the course of the
+/// MOVE reached just before (if any), else its own heading.
+fn move_anchor(pose: &Pose2D, course: Option<f64>) -> Pose2D {
+    Pose2D { theta: course.unwrap_or(pose.theta), ..*pose }
+}
+
+/// Where a target fixed in `odom` appears in this frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum TargetView {
+    /// At this pixel.
+    At(f32, f32),
+    /// Behind the camera or outside the image: any box seen is something else.
+    OutOfView,
+}
+
+fn target_view(frame: &RgbdFrame, pose: &Pose2D, target: &Point3) -> Option<TargetView> {
+    let defaults = vlnav_subgoal::grpc::DepthDefaults { min_m: 0.0, max_m: 1e3 };
+    let camera = vlnav_subgoal::grpc::camera_from_proto(frame.camera.as_ref(), "frame.camera", defaults).ok()?;
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    let base = vlnav_subgoal::geometry::Pose2::new(pose.x, pose.y, pose.theta)
+        .odom_to_base(&nalgebra::Vector2::new(target.x, target.y));
+    let pixel = vlnav_subgoal::camera::Projector::new(&camera).pixel_of(nalgebra::Vector3::new(base.x, base.y, target.z));
+    Some(match pixel {
+        Some((u, v, _)) if (0.0..w).contains(&u) && (0.0..h).contains(&v) => TargetView::At(u as f32, v as f32),
+        _ => TargetView::OutOfView,
+    })
+}
+
+/// The box showing the target predicted at `(u, v)`: the nearest whose
+/// extent, grown by half its size on every side, holds the prediction.
+fn box_at(boxes: &[BoundingBox], u: f32, v: f32) -> Option<&BoundingBox> {
+    boxes
+        .iter()
+        .filter(|b| {
+            let (mx, my) = ((b.x_max - b.x_min) / 2.0, (b.y_max - b.y_min) / 2.0);
+            (b.x_min - mx..=b.x_max + mx).contains(&u) && (b.y_min - my..=b.y_max + my).contains(&v)
+        })
+        .min_by(|a, b| {
+            let d = |x: &BoundingBox| (center(x).0 - u).hypot(center(x).1 - v);
+            d(a).total_cmp(&d(b))
+        })
+}
+
 fn zero() -> Twist2D {
     Twist2D { linear: 0.0, angular: 0.0 }
 }
@@ -266,6 +322,7 @@ impl MissionRun {
             step: None,
             start_pose: None,
             last_goal: None,
+            course: None,
             metrics: MetricsAcc::default(),
             replans: 0,
             awaiting: awaiting.map(|c| {
@@ -451,6 +508,10 @@ impl MissionRun {
         let action = ActionKind::try_from(step.action).unwrap_or(ActionKind::Unspecified);
         let span = tracing::info_span!(parent: &self.span, "step", step.index = self.index, step.action = ?action, step.desc = %step.desc);
         let d_s = if step.d_s > 0.0 { step.d_s } else { ctx.params.default_d_s };
+        let anchor = match action {
+            ActionKind::Move => move_anchor(pose, self.course),
+            _ => *pose,
+        };
         let run = async {
             ctx.pipeline
                 .local_planner
@@ -464,7 +525,7 @@ impl MissionRun {
                         .pipeline
                         .subgoal
                         .clone()
-                        .move_goal(MoveGoalRequest { anchor: Some(*pose), f_dist: step.f_dist, yaw: step.yaw, d_s: step.d_s })
+                        .move_goal(MoveGoalRequest { anchor: Some(anchor), f_dist: step.f_dist, yaw: step.yaw, d_s: step.d_s })
                         .await
                         .map_err(stage("subgoal"))?
                         .into_inner();
@@ -495,6 +556,7 @@ impl MissionRun {
                     streak: 0,
                     confirmed: false,
                     goal: None,
+                    fused: None,
                     last_center: None,
                     unseen: 0,
                     last_seen: None,
@@ -516,7 +578,7 @@ impl MissionRun {
         self.emit(
             ctx,
             frame.stamp,
-            Kind::StepStarted(StepStarted { index, step: Some(step), anchor: Some(*pose) }),
+            Kind::StepStarted(StepStarted { index, step: Some(step), anchor: Some(anchor) }),
             |m| {
                 m.current_step = index;
                 m.state = MissionState::Running as i32;
@@ -530,6 +592,8 @@ impl MissionRun {
         let g = goal.pose.unwrap_or_default();
         let error = (pose.x - g.x).hypot(pose.y - g.y);
         self.last_goal = Some(g);
+        let was_move = self.plan.get(self.index).is_some_and(|s| s.action == ActionKind::Move as i32);
+        self.course = was_move.then_some(g.theta);
         let index = self.index as u32;
         self.emit(
             ctx,
@@ -549,6 +613,8 @@ impl MissionRun {
             reason: reason.clone(),
             options: vec!["skip this step".into(), "try again".into(), "cancel the mission".into()],
         };
+        // Whatever the answer, the robot goes on from where it stands.
+        self.course = None;
         self.emit(ctx, stamp, Kind::StepFailed(StepFailed { index, reason: reason.clone() }), |_| {});
         let c = clarification.clone();
         self.emit(
@@ -685,7 +751,14 @@ impl MissionRun {
     }
 
     /// The target's box in this frame, if any: a named person must match ReID.
-    async fn find_box(&self, ctx: &Ctx<'_>, f: &FindRun, frame: &RgbdFrame, boxes: Vec<BoundingBox>) -> Result<Option<(BoundingBox, String, f32)>, StageError> {
+    async fn find_box(
+        &self,
+        ctx: &Ctx<'_>,
+        f: &FindRun,
+        frame: &RgbdFrame,
+        pose: &Pose2D,
+        boxes: Vec<BoundingBox>,
+    ) -> Result<Option<(BoundingBox, String, f32)>, StageError> {
         if boxes.is_empty() {
             return Ok(None);
         }
@@ -704,6 +777,15 @@ impl MissionRun {
                 .filter(|i| i.matched && i.name.eq_ignore_ascii_case(&f.person))
                 .max_by(|a, b| a.similarity.total_cmp(&b.similarity));
             return Ok(best.and_then(|i| boxes.get(i.box_index as usize).map(|b| (b.clone(), i.name.clone(), i.similarity))));
+        }
+        // A confirmed fixed target: the box where it projects, if it is in view.
+        if f.confirmed && !f.moving {
+            let view = f.fused.as_ref().and_then(|t| target_view(frame, pose, t));
+            match view {
+                Some(TargetView::At(u, v)) => return Ok(box_at(&boxes, u, v).map(|b| (b.clone(), String::new(), 0.0))),
+                Some(TargetView::OutOfView) => return Ok(None),
+                None => {}
+            }
         }
         // Keep to the instance we were tracking; otherwise the most confident.
         let chosen = match f.last_center {
@@ -735,7 +817,7 @@ impl MissionRun {
         let (detected, no_go) = tokio::join!(detect, self.segment(ctx, frame));
         let boxes = detected.map_err(stage("detector"))?.into_inner().boxes;
         let no_go = no_go?;
-        let seen = self.find_box(ctx, f, frame, boxes).await?;
+        let seen = self.find_box(ctx, f, frame, pose, boxes).await?;
         let mut observation = None;
         if let Some((b, identity, similarity)) = seen {
             let est = ctx
@@ -765,6 +847,7 @@ impl MissionRun {
                 f.streak += 1;
                 f.last_seen = Some(stamp);
                 f.goal = est.goal;
+                f.fused = est.fused_target.or(f.fused);
                 f.last_center = Some(center(&b));
                 if !f.confirmed && f.streak >= params.confirm_frames {
                     f.confirmed = true;
@@ -934,6 +1017,57 @@ mod tests {
         assert!((wrap(3.0 * std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-12);
         assert!((wrap(-std::f64::consts::PI) - std::f64::consts::PI).abs() < 1e-12);
         assert!((wrap(0.5) - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_move_after_a_move_turns_from_that_moves_course_not_the_arrival_heading() {
+        // The first leg ran along +x but the robot arrived swerved 0.58 rad to the right.
+        let arrived = Pose2D { x: 9.8, y: 0.1, theta: -0.58 };
+        let anchor = move_anchor(&arrived, Some(0.0));
+        assert_eq!((anchor.x, anchor.y, anchor.theta), (9.8, 0.1, 0.0));
+        // After a FIND (or a failure) there is no course: the robot's own heading counts.
+        assert_eq!(move_anchor(&arrived, None).theta, -0.58);
+    }
+
+    fn frame_with_camera() -> RgbdFrame {
+        RgbdFrame {
+            camera: Some(vlnav_proto::v1::CameraInfo {
+                width: 160,
+                height: 120,
+                intrinsics: Some(vlnav_proto::v1::CameraIntrinsics { fx: 80.0, fy: 80.0, cx: 80.0, cy: 60.0 }),
+                mount: Some(vlnav_proto::v1::CameraMount {
+                    translation: Some(Point3 { x: 0.3, y: 0.0, z: 0.5 }),
+                    ..Default::default()
+                }),
+                ..Default::default()
+            }),
+            ..Default::default()
+        }
+    }
+
+    fn bbox(x_min: f32, x_max: f32) -> BoundingBox {
+        BoundingBox { x_min, y_min: 40.0, x_max, y_max: 80.0, class_id: 56, score: 0.9, label: "chair".into() }
+    }
+
+    #[test]
+    fn a_confirmed_target_is_found_where_it_projects() {
+        let frame = frame_with_camera();
+        // Robot at (1, 1) facing +y; the chair 3 m ahead of it, 0.5 m high (the camera's height).
+        let pose = Pose2D { x: 1.0, y: 1.0, theta: std::f64::consts::FRAC_PI_2 };
+        let chair = Point3 { x: 1.0, y: 4.3, z: 0.5 };
+        let Some(TargetView::At(u, v)) = target_view(&frame, &pose, &chair) else { panic!("the chair is in view") };
+        assert!((u - 80.0).abs() < 0.5 && (v - 60.0).abs() < 0.5, "({u}, {v})");
+        // Two chairs in the image: the one at the prediction, not the first or the most confident.
+        let other = BoundingBox { score: 0.99, ..bbox(5.0, 40.0) };
+        let boxes = vec![other, bbox(70.0, 95.0)];
+        assert_eq!(box_at(&boxes, u, v).map(|b| b.x_min), Some(70.0));
+        // Only the other chair in view: nothing is the target.
+        assert_eq!(box_at(&boxes[..1], u, v), None);
+        // Turned away (the chair is now on the robot's left, outside the ±45° view).
+        let turned = Pose2D { theta: 0.0, ..pose };
+        assert_eq!(target_view(&frame, &turned, &chair), Some(TargetView::OutOfView));
+        // No camera in the frame: no prediction (the image-space rule applies).
+        assert_eq!(target_view(&RgbdFrame::default(), &pose, &chair), None);
     }
 
     #[test]
