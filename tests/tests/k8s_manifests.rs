@@ -252,10 +252,23 @@ fn check_rules(label: &str, objs: &[Value]) {
     // Telemetry wiring.
     let config = of_kind(objs, "ConfigMap").into_iter().find(|c| name(c) == "vlnav-config").expect("vlnav-config");
     assert_eq!(config["data"]["OTEL_EXPORTER_OTLP_ENDPOINT"], "http://otel-collector:4317");
+    // The gateway balances over every replica of a scaled service (a headless
+    // Service's DNS answer); a stateful one is one replica behind its Service.
     for (svc, port) in vlnav_ports() {
         if svc != "gateway" {
             let key = format!("VLNAV_{}_ADDR", svc.replace('-', "_").to_uppercase());
-            assert_eq!(config["data"][&key], format!("http://{svc}:{port}"), "{label}: {key}");
+            let expected = if stateless.contains(svc) {
+                let headless = services
+                    .get(format!("{svc}-replicas").as_str())
+                    .unwrap_or_else(|| panic!("{label}: no headless Service {svc}-replicas"));
+                assert_eq!(get(headless, "spec.clusterIP"), "None", "{label}/{svc}-replicas: headless");
+                assert_eq!(get(headless, "spec.ports")[0]["port"], port, "{label}/{svc}-replicas: port");
+                assert_eq!(get(headless, "spec.selector")["app.kubernetes.io/name"], svc, "{label}/{svc}-replicas: selector");
+                format!("dns:///{svc}-replicas:{port}")
+            } else {
+                format!("http://{svc}:{port}")
+            };
+            assert_eq!(config["data"][&key], expected, "{label}: {key}");
         }
     }
     for telemetry in ["otel-collector", "jaeger"] {

@@ -84,7 +84,7 @@ impl TestServer {
 
     /// A lazily connecting channel that carries the caller's trace context,
     /// as the services' own clients use ([`crate::client::channel`]).
-    pub fn traced_channel(&self) -> Result<TracedChannel, tonic::transport::Error> {
+    pub fn traced_channel(&self) -> Result<TracedChannel, crate::client::AddressError> {
         crate::client::channel(&self.uri())
     }
 
