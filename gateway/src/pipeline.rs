@@ -25,30 +25,28 @@ pub struct Pipeline {
 /// Frames are large; allow what a 4096² RGB-D frame needs.
 const MAX_MESSAGE: usize = 128 * 1024 * 1024;
 
+/// A stage client over a lazily connecting traced channel to `$uri`, with
+/// the frame-sized message limits.
+macro_rules! stage_client {
+    ($client:ident, $uri:expr) => {{
+        let uri: &str = $uri;
+        $client::new(channel(uri).map_err(|e| anyhow::anyhow!("bad service address {uri}: {e}"))?)
+            .max_decoding_message_size(MAX_MESSAGE)
+            .max_encoding_message_size(MAX_MESSAGE)
+    }};
+}
+
 impl Pipeline {
     /// Lazily connecting clients: services may start after the gateway.
     pub fn connect(opts: &GatewayOptions) -> anyhow::Result<Self> {
-        let ch = |uri: &str| channel(uri).map_err(|e| anyhow::anyhow!("bad service address {uri}: {e}"));
         Ok(Self {
-            ingress: IngressServiceClient::new(ch(&opts.ingress_uri)?)
-                .max_decoding_message_size(MAX_MESSAGE)
-                .max_encoding_message_size(MAX_MESSAGE),
-            planner: PlannerServiceClient::new(ch(&opts.planner_uri)?),
-            detector: DetectorServiceClient::new(ch(&opts.detector_uri)?)
-                .max_decoding_message_size(MAX_MESSAGE)
-                .max_encoding_message_size(MAX_MESSAGE),
-            reid: ReidServiceClient::new(ch(&opts.reid_uri)?)
-                .max_decoding_message_size(MAX_MESSAGE)
-                .max_encoding_message_size(MAX_MESSAGE),
-            segmenter: SegmenterServiceClient::new(ch(&opts.segmenter_uri)?)
-                .max_decoding_message_size(MAX_MESSAGE)
-                .max_encoding_message_size(MAX_MESSAGE),
-            subgoal: SubgoalServiceClient::new(ch(&opts.subgoal_uri)?)
-                .max_decoding_message_size(MAX_MESSAGE)
-                .max_encoding_message_size(MAX_MESSAGE),
-            local_planner: LocalPlannerServiceClient::new(ch(&opts.local_planner_uri)?)
-                .max_decoding_message_size(MAX_MESSAGE)
-                .max_encoding_message_size(MAX_MESSAGE),
+            ingress: stage_client!(IngressServiceClient, &opts.ingress_uri),
+            planner: stage_client!(PlannerServiceClient, &opts.planner_uri),
+            detector: stage_client!(DetectorServiceClient, &opts.detector_uri),
+            reid: stage_client!(ReidServiceClient, &opts.reid_uri),
+            segmenter: stage_client!(SegmenterServiceClient, &opts.segmenter_uri),
+            subgoal: stage_client!(SubgoalServiceClient, &opts.subgoal_uri),
+            local_planner: stage_client!(LocalPlannerServiceClient, &opts.local_planner_uri),
         })
     }
 }
