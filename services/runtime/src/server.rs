@@ -15,10 +15,10 @@ use futures::future::BoxFuture;
 use opentelemetry::KeyValue;
 use opentelemetry::propagation::Extractor;
 use tokio::net::TcpListener;
-use tokio_stream::wrappers::TcpListenerStream;
 use tokio_util::sync::CancellationToken;
 use tonic::body::Body;
 use tonic::server::NamedService;
+use tonic::transport::server::TcpIncoming;
 use tonic::service::RoutesBuilder;
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
@@ -143,7 +143,10 @@ pub async fn serve(
         .initial_connection_window_size(crate::client::CONNECTION_WINDOW)
         .layer(TelemetryLayer { stages: Arc::new(stages) })
         .add_routes(routes.routes())
-        .serve_with_incoming_shutdown(TcpListenerStream::new(listener), drain)
+        // The builder's tcp_nodelay applies only to listeners tonic binds
+        // itself; accepted sockets of ours need it set here, or Nagle holds
+        // a response's last segment until the client's delayed ACK (~40 ms).
+        .serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), drain)
         .await?;
     Ok(())
 }

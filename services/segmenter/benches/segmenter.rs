@@ -68,7 +68,8 @@ fn service(c: &mut Criterion) {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
         let addr = listener.local_addr().unwrap();
         tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, vlnav_runtime::CancellationToken::new()).await });
-        SegmenterServiceClient::connect(format!("http://{addr}")).await.unwrap()
+        // The channel the gateway uses (HTTP/2 windows sized for frames).
+        SegmenterServiceClient::new(vlnav_runtime::client::channel(&format!("http://{addr}")).unwrap())
     });
     let frame = RgbdFrame {
         camera: Some(CameraInfo {
