@@ -3,10 +3,12 @@
 //!
 //! - MOVE: subgoal estimator → goal relative to the anchor (the odometry pose
 //!   re-anchored at the last reached subgoal) → local planner until reached.
-//!   After a reached MOVE the anchor keeps that MOVE's heading (its course),
-//!   not the heading the robot arrived with: "move 10 m, then turn left 30°"
-//!   turns from the direction of the first leg, and a swerve or a settle at
-//!   the end of that leg would otherwise rotate everything after it.
+//!   After a reached MOVE or FIND the anchor keeps that step's heading (the
+//!   MOVE's course; facing the FIND's target), not the heading the robot
+//!   arrived with: "move 10 m, then turn left 30°" turns from the direction
+//!   of the first leg, "stop before the person, then turn right 45°" from
+//!   facing the person, and a swerve or a settle at the end of the step
+//!   would otherwise rotate everything after it.
 //! - FIND: detector (+ ReID for a named person) → subgoal estimator (fused
 //!   target) → confirmed after `confirm_frames` consecutive sightings → local
 //!   planner until within d_s. Once a fixed target is confirmed, each frame's
@@ -226,8 +228,8 @@ pub struct MissionRun {
     step: Option<Active>,
     start_pose: Option<Pose2D>,
     last_goal: Option<Pose2D>,
-    /// The heading (odom) of the last reached MOVE's goal while the steps
-    /// since are MOVEs: the course the next MOVE turns from.
+    /// The heading (odom) of the last reached MOVE's or FIND's goal: the
+    /// course the next MOVE turns from.
     course: Option<f64>,
     metrics: MetricsAcc,
     replans: u32,
@@ -257,7 +259,7 @@ fn depth_only(f: &RgbdFrame) -> RgbdFrame {
 }
 
 /// Where a MOVE starts from: the robot's position, facing the course of the
-/// MOVE reached just before (if any), else its own heading.
+/// MOVE or FIND reached just before (if any), else its own heading.
 fn move_anchor(pose: &Pose2D, course: Option<f64>) -> Pose2D {
     Pose2D { theta: course.unwrap_or(pose.theta), ..*pose }
 }
@@ -592,8 +594,13 @@ impl MissionRun {
         let g = goal.pose.unwrap_or_default();
         let error = (pose.x - g.x).hypot(pose.y - g.y);
         self.last_goal = Some(g);
-        let was_move = self.plan.get(self.index).is_some_and(|s| s.action == ActionKind::Move as i32);
-        self.course = was_move.then_some(g.theta);
+        // A MOVE's goal heads along its course, a FIND's faces its target; a
+        // FOLLOW ends wherever the person led, a RETURN at the start pose.
+        let sets_course = self
+            .plan
+            .get(self.index)
+            .is_some_and(|s| s.action == ActionKind::Move as i32 || s.action == ActionKind::Find as i32);
+        self.course = sets_course.then_some(g.theta);
         let index = self.index as u32;
         self.emit(
             ctx,
@@ -1025,7 +1032,7 @@ mod tests {
         let arrived = Pose2D { x: 9.8, y: 0.1, theta: -0.58 };
         let anchor = move_anchor(&arrived, Some(0.0));
         assert_eq!((anchor.x, anchor.y, anchor.theta), (9.8, 0.1, 0.0));
-        // After a FIND (or a failure) there is no course: the robot's own heading counts.
+        // After a FOLLOW, a RETURN or a failure there is no course: the robot's own heading counts.
         assert_eq!(move_anchor(&arrived, None).theta, -0.58);
     }
 

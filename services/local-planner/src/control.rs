@@ -14,8 +14,11 @@
 //!   undo the detour and oscillate.
 //! - Path following (CMU's path follower): the look-ahead point is where the
 //!   chosen path crosses 0.5 m from the robot; `ω = 7.5·bearing`, clamped to
-//!   the yaw-rate limit and to what turns onto the bearing within one frame
-//!   period (at 5 fps the CMU gain alone would overshoot); speed ramps up by
+//!   the yaw-rate limit, to what turns onto the bearing within one frame
+//!   period (at 5 fps the CMU gain alone would overshoot) and to what can
+//!   still stop on the bearing, `√(2·yaw_decel·|bearing|)`: a Husky needs
+//!   0.26 s to stop from full yaw rate, and a command that only stops at the
+//!   bearing overshoots it and swings from side to side); speed ramps up by
 //!   `max_accel·dt` only while the bearing is below 0.2 rad (CMU's 0.1 is for
 //!   100 Hz: at 5 fps a lagging turn swung the robot ±0.13 rad between two
 //!   near-equal paths and it never moved), otherwise down,
@@ -47,6 +50,8 @@ pub struct FollowParams {
     pub max_speed: f64,
     pub max_yaw_rate: f64,
     pub max_accel: f64,
+    /// Yaw deceleration turn commands plan with, rad/s².
+    pub yaw_decel: f64,
     /// Speed ramps up only while the look-ahead bearing is below this, rad.
     pub align_threshold: f64,
     pub rotate_threshold: f64,
@@ -76,6 +81,7 @@ impl Default for FollowParams {
             max_speed: 1.0,
             max_yaw_rate: 1.57,
             max_accel: 1.0,
+            yaw_decel: 3.0,
             align_threshold: 0.2,
             rotate_threshold: 1.0,
             rerotate_threshold: 1.9,
@@ -177,9 +183,10 @@ pub struct RobotState {
     scratch: Scratch,
 }
 
-fn clamp_turn(rate: f64, error: f64, limit: f64, dt: f64) -> f64 {
-    // Never turn past the target bearing within one frame period.
-    let cap = limit.min(error.abs() / dt.max(1e-3));
+fn clamp_turn(rate: f64, error: f64, p: &FollowParams, dt: f64) -> f64 {
+    // Never turn past the target bearing within one frame period, nor faster
+    // than lets the robot still stop on it.
+    let cap = p.max_yaw_rate.min(error.abs() / dt.max(1e-3)).min((2.0 * p.yaw_decel * error.abs()).sqrt());
     rate.clamp(-cap, cap)
 }
 
@@ -263,7 +270,7 @@ impl RobotState {
             if yaw_error.abs() < goal.yaw_tolerance {
                 return stop(self, out, StepStatus::Reached);
             }
-            out.angular = clamp_turn(p.rotate_gain * yaw_error, yaw_error, p.max_yaw_rate, dt);
+            out.angular = clamp_turn(p.rotate_gain * yaw_error, yaw_error, p, dt);
             return stop(self, out, StepStatus::Rotating);
         }
         if distance <= goal.position_tolerance {
@@ -278,7 +285,7 @@ impl RobotState {
         self.rotating = bearing.abs() > exit;
         self.aligned |= !self.rotating;
         if self.rotating {
-            out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p.max_yaw_rate, dt);
+            out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p, dt);
             return stop(self, out, StepStatus::Rotating);
         }
 
@@ -306,7 +313,7 @@ impl RobotState {
             .copied()
             .unwrap_or_else(|| Vector2::new(1.0, 0.0));
         let dir = look.y.atan2(look.x);
-        out.angular = clamp_turn(p.yaw_gain * dir, dir, p.max_yaw_rate, dt);
+        out.angular = clamp_turn(p.yaw_gain * dir, dir, p, dt);
         let target = speed * (distance / p.slow_down_distance).min(1.0);
         let v = if dir.abs() < p.align_threshold {
             (self.last_speed + p.max_accel * dt).min(target)
@@ -335,5 +342,45 @@ impl RobotState {
         }
         self.last_speed = v;
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Turns a Husky-like yaw axis (6 rad/s² acceleration limit; each
+    /// frame's command held over the next frame period, as the edge agent
+    /// does) onto a bearing `target` rad away; returns the largest overshoot
+    /// past it, rad.
+    fn overshoot(p: &FollowParams, target: f64, dt: f64) -> f64 {
+        let (mut heading, mut rate, mut worst) = (0.0_f64, 0.0_f64, 0.0_f64);
+        for _ in 0..(5.0 / dt) as usize {
+            let command = clamp_turn(p.yaw_gain * (target - heading), target - heading, p, dt);
+            for _ in 0..10 {
+                let step = 6.0 * dt / 10.0;
+                rate += (command - rate).clamp(-step, step);
+                heading += rate * dt / 10.0;
+            }
+            worst = worst.max(heading - target);
+        }
+        worst
+    }
+
+    #[test]
+    fn turn_commands_leave_room_to_stop_on_the_bearing() {
+        let p = FollowParams::default();
+        // Full yaw rate only while the bearing leaves room to brake at yaw_decel.
+        assert_eq!(clamp_turn(10.0, 1.0, &p, 0.1), p.max_yaw_rate);
+        assert!((clamp_turn(10.0, 0.1, &p, 0.1) - (2.0 * p.yaw_decel * 0.1_f64).sqrt()).abs() < 1e-12);
+        assert_eq!(clamp_turn(-10.0, -0.1, &p, 0.1), -(2.0 * p.yaw_decel * 0.1_f64).sqrt());
+        // Closed loop at the demo's 10 fps: without the braking cap the robot
+        // swings well past the bearing; with it, it settles onto it.
+        let unbraked = FollowParams { yaw_decel: f64::INFINITY, ..p };
+        for target in [0.3, 0.6, 1.0] {
+            let (with, without) = (overshoot(&p, target, 0.1), overshoot(&unbraked, target, 0.1));
+            assert!(without > 0.08, "target {target}: the unbraked turn overshoots ({without:.3} rad)");
+            assert!(with < 0.4 * without, "target {target}: braked {with:.3} rad vs unbraked {without:.3} rad");
+        }
     }
 }

@@ -61,6 +61,10 @@ pub struct Options {
     /// Speed ramp, m/s².
     #[arg(long = "local-planner-max-accel", env = "VLNAV_LOCAL_PLANNER_MAX_ACCEL", default_value_t = 1.0)]
     pub max_accel: f64,
+    /// Yaw deceleration the turn command plans with, rad/s²: half the Husky's
+    /// 6 rad/s², for the frame of delay before a command takes effect.
+    #[arg(long = "local-planner-yaw-decel", env = "VLNAV_LOCAL_PLANNER_YAW_DECEL", default_value_t = 3.0)]
+    pub yaw_decel: f64,
     /// Look-ahead distance and yaw-rate gain of the path follower.
     #[arg(long = "local-planner-look-ahead", env = "VLNAV_LOCAL_PLANNER_LOOK_AHEAD_M", default_value_t = 0.5)]
     pub look_ahead_m: f64,
@@ -99,6 +103,7 @@ impl Default for Options {
             max_speed: 1.0,
             max_yaw_rate: 1.57,
             max_accel: 1.0,
+            yaw_decel: 3.0,
             look_ahead_m: 0.5,
             yaw_gain: 7.5,
             ground_z_m: 0.0,
@@ -118,6 +123,7 @@ impl Options {
             ("--local-planner-max-speed", self.max_speed),
             ("--local-planner-max-yaw-rate", self.max_yaw_rate),
             ("--local-planner-max-accel", self.max_accel),
+            ("--local-planner-yaw-decel", self.yaw_decel),
             ("--local-planner-look-ahead", self.look_ahead_m),
             ("--local-planner-yaw-gain", self.yaw_gain),
             ("--local-planner-progress-window", self.progress_window_s),
@@ -169,6 +175,7 @@ impl Options {
             max_speed: self.max_speed,
             max_yaw_rate: self.max_yaw_rate,
             max_accel: self.max_accel,
+            yaw_decel: self.yaw_decel,
             progress_window_s: self.progress_window_s,
             ..FollowParams::default()
         }
