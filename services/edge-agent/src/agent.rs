@@ -242,11 +242,9 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
                 backoff.reset();
                 status.reset();
                 tracing::info!(robot = %opts.robot_id, "attached to the gateway");
-                if opts.lockstep {
-                    lockstep_session(opts, &mut robot, &mut gov, &mut link, &mut status, &hooks, &shutdown).await
-                } else {
-                    realtime_session(opts, &mut robot, &mut gov, &mut link, &mut status, &hooks, &shutdown).await
-                }
+                let mut session =
+                    Session { opts, robot: &mut robot, gov: &mut gov, link: &mut link, status: &mut status, hooks: &hooks, shutdown: &shutdown };
+                if opts.lockstep { session.lockstep().await } else { session.realtime().await }
             }
             Err(e) => SessionEnd::Lost(format!("{e:#}")),
         };
@@ -307,118 +305,122 @@ fn observe(hooks: &Hooks, robot: &SimRobot, applied: Twist, verdict: Verdict, go
     }
 }
 
-async fn lockstep_session(
-    opts: &EdgeOptions,
-    robot: &mut SimRobot,
-    gov: &mut Governor,
-    link: &mut Link,
-    status: &mut StatusReporter,
-    hooks: &Hooks,
-    shutdown: &CancellationToken,
-) -> SessionEnd {
-    let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
-    loop {
-        if shutdown.is_cancelled() || robot.time_is_up() {
-            return SessionEnd::Finished;
-        }
-        let (frame, odo, _, _) = robot.capture();
-        let stamp = robot.sim.time();
-        for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
-            tokio::select! {
-                _ = shutdown.cancelled() => return SessionEnd::Finished,
-                r = link.send(msg) => if let Err(e) = r { return SessionEnd::Lost(e) },
+/// One connection's worth of driving the simulated robot: what a session
+/// reads, and the state it carries over to the next connection.
+struct Session<'a> {
+    opts: &'a EdgeOptions,
+    robot: &'a mut SimRobot,
+    gov: &'a mut Governor,
+    link: &'a mut Link,
+    status: &'a mut StatusReporter,
+    hooks: &'a Hooks,
+    shutdown: &'a CancellationToken,
+}
+
+impl Session<'_> {
+    /// One frame out, one command back, then the next frame.
+    async fn lockstep(&mut self) -> SessionEnd {
+        let Session { opts, robot, gov, link, status, hooks, shutdown } = self;
+        let (opts, hooks, shutdown) = (*opts, *hooks, *shutdown);
+        let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
+        loop {
+            if shutdown.is_cancelled() || robot.time_is_up() {
+                return SessionEnd::Finished;
             }
-        }
-        // The one command that answers this frame.
-        let deadline = Instant::now() + liveness;
-        let answer = loop {
-            let msg = tokio::select! {
-                _ = shutdown.cancelled() => return SessionEnd::Finished,
-                _ = tokio::time::sleep_until(deadline) => {
-                    return SessionEnd::Lost(format!("no command for the frame stamped {stamp:.3} s within {} s", opts.liveness_timeout_s));
+            let (frame, odo, _, _) = robot.capture();
+            let stamp = robot.sim.time();
+            for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
+                tokio::select! {
+                    _ = shutdown.cancelled() => return SessionEnd::Finished,
+                    r = link.send(msg) => if let Err(e) = r { return SessionEnd::Lost(e) },
                 }
-                m = link.recv() => m,
+            }
+            // The one command that answers this frame.
+            let deadline = Instant::now() + liveness;
+            let answer = loop {
+                let msg = tokio::select! {
+                    _ = shutdown.cancelled() => return SessionEnd::Finished,
+                    _ = tokio::time::sleep_until(deadline) => {
+                        return SessionEnd::Lost(format!("no command for the frame stamped {stamp:.3} s within {} s", opts.liveness_timeout_s));
+                    }
+                    m = link.recv() => m,
+                };
+                match msg {
+                    Err(e) => return SessionEnd::Lost(e),
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => break v,
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
+                    Ok(_) => {}
+                }
             };
-            match msg {
-                Err(e) => return SessionEnd::Lost(e),
-                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => break v,
-                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
-                Ok(_) => {}
+            gov.on_command(answer.stamp, twist_of(&answer));
+            gov.set_estop(hooks.estop.is_engaged());
+            let (out, verdict) = gov.output(stamp);
+            if let Some(s) = status.update(stamp, verdict) {
+                if let Err(e) = link.send(s).await {
+                    return SessionEnd::Lost(e);
+                }
             }
-        };
-        gov.on_command(answer.stamp, twist_of(&answer));
-        gov.set_estop(hooks.estop.is_engaged());
-        let (out, verdict) = gov.output(stamp);
-        if let Some(s) = status.update(stamp, verdict) {
-            if let Err(e) = link.send(s).await {
-                return SessionEnd::Lost(e);
-            }
-        }
-        observe(hooks, robot, out, verdict, gov, answer.idle, answer.mission_id.clone());
-        robot.step(out);
-        if answer.idle {
-            match &hooks.idle_gate {
-                Some(gate) if !gate.is_open() => tokio::select! {
-                    _ = shutdown.cancelled() => return SessionEnd::Finished,
-                    _ = gate.opened() => {}
-                },
-                _ => tokio::select! {
-                    _ = shutdown.cancelled() => return SessionEnd::Finished,
-                    _ = tokio::time::sleep(Duration::from_secs_f64(robot.period)) => {}
-                },
+            observe(hooks, robot, out, verdict, gov, answer.idle, answer.mission_id.clone());
+            robot.step(out);
+            if answer.idle {
+                match &hooks.idle_gate {
+                    Some(gate) if !gate.is_open() => tokio::select! {
+                        _ = shutdown.cancelled() => return SessionEnd::Finished,
+                        _ = gate.opened() => {}
+                    },
+                    _ => tokio::select! {
+                        _ = shutdown.cancelled() => return SessionEnd::Finished,
+                        _ = tokio::time::sleep(Duration::from_secs_f64(robot.period)) => {}
+                    },
+                }
             }
         }
     }
-}
 
-async fn realtime_session(
-    opts: &EdgeOptions,
-    robot: &mut SimRobot,
-    gov: &mut Governor,
-    link: &mut Link,
-    status: &mut StatusReporter,
-    hooks: &Hooks,
-    shutdown: &CancellationToken,
-) -> SessionEnd {
-    let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
-    let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let (mut idle, mut mission) = (true, String::new());
-    // The first frame goes out at once; then one per tick, after stepping.
-    let mut first = true;
-    loop {
-        tokio::select! {
-            _ = shutdown.cancelled() => return SessionEnd::Finished,
-            m = link.recv() => match m {
-                Err(e) => return SessionEnd::Lost(e),
-                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => {
-                    gov.on_command(v.stamp, twist_of(&v));
-                    idle = v.idle;
-                    mission = v.mission_id;
-                }
-                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
-                Ok(_) => {}
-            },
-            _ = tick.tick() => {
-                if link.last_heard().elapsed() > liveness {
-                    return SessionEnd::Lost(format!("nothing from the gateway for {} s", opts.liveness_timeout_s));
-                }
-                if !first {
-                    gov.set_estop(hooks.estop.is_engaged());
-                    let (out, verdict) = gov.output(robot.sim.time());
-                    if let Some(s) = status.update(robot.sim.time(), verdict) {
-                        if let Err(e) = link.offer(s) { return SessionEnd::Lost(e); }
+    /// Frames at the frame rate; commands apply whenever they arrive.
+    async fn realtime(&mut self) -> SessionEnd {
+        let Session { opts, robot, gov, link, status, hooks, shutdown } = self;
+        let (opts, hooks, shutdown) = (*opts, *hooks, *shutdown);
+        let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
+        let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        let (mut idle, mut mission) = (true, String::new());
+        // The first frame goes out at once; then one per tick, after stepping.
+        let mut first = true;
+        loop {
+            tokio::select! {
+                _ = shutdown.cancelled() => return SessionEnd::Finished,
+                m = link.recv() => match m {
+                    Err(e) => return SessionEnd::Lost(e),
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => {
+                        gov.on_command(v.stamp, twist_of(&v));
+                        idle = v.idle;
+                        mission = v.mission_id;
                     }
-                    observe(hooks, robot, out, verdict, gov, idle, mission.clone());
-                    robot.step(out);
-                }
-                first = false;
-                if robot.time_is_up() {
-                    return SessionEnd::Finished;
-                }
-                let (frame, odo, _, _) = robot.capture();
-                for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
-                    if let Err(e) = link.offer(msg) { return SessionEnd::Lost(e); }
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
+                    Ok(_) => {}
+                },
+                _ = tick.tick() => {
+                    if link.last_heard().elapsed() > liveness {
+                        return SessionEnd::Lost(format!("nothing from the gateway for {} s", opts.liveness_timeout_s));
+                    }
+                    if !first {
+                        gov.set_estop(hooks.estop.is_engaged());
+                        let (out, verdict) = gov.output(robot.sim.time());
+                        if let Some(s) = status.update(robot.sim.time(), verdict) {
+                            if let Err(e) = link.offer(s) { return SessionEnd::Lost(e); }
+                        }
+                        observe(hooks, robot, out, verdict, gov, idle, mission.clone());
+                        robot.step(out);
+                    }
+                    first = false;
+                    if robot.time_is_up() {
+                        return SessionEnd::Finished;
+                    }
+                    let (frame, odo, _, _) = robot.capture();
+                    for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
+                        if let Err(e) = link.offer(msg) { return SessionEnd::Lost(e); }
+                    }
                 }
             }
         }
