@@ -141,16 +141,8 @@ pub fn compose(a: &Pose2D, b: &Pose2D) -> Pose2D {
     Pose2D { x: a.x + c * b.x - s * b.y, y: a.y + s * b.x + c * b.y, theta: wrap(a.theta + b.theta) }
 }
 
-/// Angle wrapped to (−π, π].
-pub fn wrap(a: f64) -> f64 {
-    let mut a = a % std::f64::consts::TAU;
-    if a > std::f64::consts::PI {
-        a -= std::f64::consts::TAU;
-    } else if a <= -std::f64::consts::PI {
-        a += std::f64::consts::TAU;
-    }
-    a
-}
+/// Angle wrapped to (−π, π] (the subgoal estimator's, so both wrap alike).
+pub use vlnav_subgoal::geometry::wrap_angle as wrap;
 
 /// The next phase of a fruitless search, given where the last one ended.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -8,10 +8,10 @@
 use std::path::{Path, PathBuf};
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use tokio::net::TcpListener;
 use vlnav_detector::{BackendKind, Options};
 use vlnav_proto::v1::{self, detector_service_client::DetectorServiceClient};
-use vlnav_runtime::{CancellationToken, ServerConfig};
+use vlnav_runtime::ServerConfig;
+use vlnav_runtime::testing::{Connected, start_client};
 
 fn models_dir() -> PathBuf {
     std::env::var_os("VLNAV_MODELS_DIR")
@@ -19,16 +19,11 @@ fn models_dir() -> PathBuf {
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models"))
 }
 
-async fn start(opts: Options) -> (DetectorServiceClient<tonic::transport::Channel>, CancellationToken) {
+/// The detector served on a loopback port, with a client (dropping it stops the server).
+async fn start(opts: Options) -> Connected<DetectorServiceClient<tonic::transport::Channel>> {
     let cfg = ServerConfig::default();
     let set = vlnav_detector::services(&opts, &cfg).await.expect("detector services (run deploy/fetch-models.sh)");
-    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    let token = CancellationToken::new();
-    let t = token.clone();
-    tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, t).await });
-    let client = DetectorServiceClient::connect(format!("http://{addr}")).await.unwrap().max_decoding_message_size(64 << 20);
-    (client, token)
+    start_client(&cfg, set, |ch| DetectorServiceClient::new(ch).max_decoding_message_size(64 << 20)).await.unwrap()
 }
 
 /// A 640×480 camera frame (the D455's colour resolution) as raw RGB8, cut from bike.jpg.
@@ -77,7 +72,8 @@ fn service_latency(c: &mut Criterion) {
         ("sim_640x480", Options { backend: BackendKind::Sim, ..Default::default() }, label_frame()),
     ];
     for (name, opts, frame) in cases {
-        let (client, token) = rt.block_on(start(opts));
+        let served = rt.block_on(start(opts));
+        let client = served.client.clone();
         let req = v1::DetectRequest { frame: Some(frame), class_ids: vec![], min_score: 0.0 };
         group.bench_function(name, |b| {
             b.to_async(&rt).iter(|| {
@@ -86,7 +82,7 @@ fn service_latency(c: &mut Criterion) {
                 async move { client.detect(req).await.unwrap() }
             })
         });
-        token.cancel();
+        drop(served);
     }
     group.finish();
 }

@@ -123,6 +123,29 @@ impl StatusReporter {
     }
 }
 
+/// What the latest velocity command said besides its twist: whether the
+/// gateway is idle (no mission running) and for which mission it was.
+#[derive(Clone, Debug)]
+pub(crate) struct LastCommand {
+    pub idle: bool,
+    pub mission: String,
+}
+
+impl Default for LastCommand {
+    fn default() -> Self {
+        Self { idle: true, mission: String::new() }
+    }
+}
+
+impl LastCommand {
+    /// Hands `v`'s twist to the governor and keeps the rest.
+    pub(crate) fn take(&mut self, gov: &mut Governor, v: pb::VelocityCommand) {
+        gov.on_command(v.stamp, twist_of(&v));
+        self.idle = v.idle;
+        self.mission = v.mission_id;
+    }
+}
+
 pub(crate) fn twist_of(v: &pb::VelocityCommand) -> Twist {
     v.twist.map(|t| Twist::new(t.linear, t.angular)).unwrap_or(Twist::ZERO)
 }
@@ -384,7 +407,7 @@ impl Session<'_> {
         let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
         let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-        let (mut idle, mut mission) = (true, String::new());
+        let mut last = LastCommand::default();
         // The first frame goes out at once; then one per tick, after stepping.
         let mut first = true;
         loop {
@@ -392,11 +415,7 @@ impl Session<'_> {
                 _ = shutdown.cancelled() => return SessionEnd::Finished,
                 m = link.recv() => match m {
                     Err(e) => return SessionEnd::Lost(e),
-                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => {
-                        gov.on_command(v.stamp, twist_of(&v));
-                        idle = v.idle;
-                        mission = v.mission_id;
-                    }
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => last.take(gov, v),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
                     Ok(_) => {}
                 },
@@ -410,7 +429,7 @@ impl Session<'_> {
                         if let Some(s) = status.update(robot.sim.time(), verdict) {
                             if let Err(e) = link.offer(s) { return SessionEnd::Lost(e); }
                         }
-                        observe(hooks, robot, out, verdict, gov, idle, mission.clone());
+                        observe(hooks, robot, out, verdict, gov, last.idle, last.mission.clone());
                         robot.step(out);
                     }
                     first = false;

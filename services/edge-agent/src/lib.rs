@@ -255,9 +255,6 @@ impl IdleGate {
     pub fn open(&self) {
         self.0.send_replace(true);
     }
-    pub fn close(&self) {
-        self.0.send_replace(false);
-    }
     pub fn is_open(&self) -> bool {
         *self.0.borrow()
     }

@@ -17,7 +17,7 @@ use vlnav_proto::v1 as pb;
 use vlnav_runtime::CancellationToken;
 use vlnav_sim::{Pose2, Twist};
 
-use crate::agent::{Link, SessionEnd, StatusReporter, twist_of};
+use crate::agent::{LastCommand, Link, SessionEnd, StatusReporter};
 use crate::convert::{self, RobotDescription};
 use crate::safety::{Backoff, Governor, Limits, Verdict};
 use crate::{EdgeOptions, Hooks, StepRecord};
@@ -373,18 +373,14 @@ async fn ros_session(
     let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
     let mut tick = tokio::time::interval(Duration::from_secs_f64(1.0 / opts.control_rate_hz));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let (mut idle, mut mission) = (true, String::new());
+    let mut last = LastCommand::default();
     let mut seq = 0u64;
     loop {
         tokio::select! {
             _ = shutdown.cancelled() => { robot.publish(Twist::ZERO); return SessionEnd::Finished; }
             m = link.recv() => match m {
                 Err(e) => return SessionEnd::Lost(e),
-                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => {
-                    gov.on_command(v.stamp, twist_of(&v));
-                    idle = v.idle;
-                    mission = v.mission_id;
-                }
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => last.take(gov, v),
                 Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => {
                     tracing::warn!("ResetOdometry is not supported by the ros1 driver; odometry goals stay in the robot's odom frame");
                 }
@@ -433,8 +429,8 @@ async fn ros_session(
                         command: gov.command(),
                         applied: out,
                         verdict,
-                        idle,
-                        mission_id: mission.clone(),
+                        idle: last.idle,
+                        mission_id: last.mission.clone(),
                     });
                 }
             }

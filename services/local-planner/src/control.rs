@@ -18,7 +18,7 @@
 //!   period (at 5 fps the CMU gain alone would overshoot) and to what can
 //!   still stop on the bearing, `√(2·yaw_decel·|bearing|)`: a Husky needs
 //!   0.26 s to stop from full yaw rate, and a command that only stops at the
-//!   bearing overshoots it and swings from side to side); speed ramps up by
+//!   bearing overshoots it and swings from side to side; speed ramps up by
 //!   `max_accel·dt` only while the bearing is below 0.2 rad (CMU's 0.1 is for
 //!   100 Hz: at 5 fps a lagging turn swung the robot ±0.13 rad between two
 //!   near-equal paths and it never moved), otherwise down,

@@ -80,18 +80,13 @@ fn service(c: &mut Criterion) {
             threshold: None,
         };
         let cfg = vlnav_runtime::ServerConfig::default();
-        let (mut client, token) = rt.block_on(async {
+        let mut served = rt.block_on(async {
             let set = vlnav_reid::services(&opts, &cfg).await.unwrap_or_else(|e| panic!("{e:#}"));
-            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-            let addr = listener.local_addr().unwrap();
-            let token = vlnav_runtime::CancellationToken::new();
-            let t = token.clone();
-            tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, t).await });
-            let mut client = ReidServiceClient::connect(format!("http://{addr}")).await.unwrap();
+            let mut served = vlnav_runtime::testing::start_client(&cfg, set, ReidServiceClient::new).await.unwrap();
             let crop = image::imageops::crop_imm(&img, 250, 100, 120, 320).to_image();
             let person = Image { width: 120, height: 320, encoding: ImageEncoding::Rgb8 as i32, data: crop.into_raw() };
-            client.enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![person] }).await.unwrap();
-            (client, token)
+            served.client.enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![person] }).await.unwrap();
+            served
         });
         let req = IdentifyRequest {
             frame: Some(RgbdFrame { rgb: Some(rgb.clone()), ..Default::default() }),
@@ -100,9 +95,9 @@ fn service(c: &mut Criterion) {
             name: String::new(),
         };
         g.bench_function(format!("identify/{}/640x480-1-box", kind.name()), |b| {
-            b.iter(|| rt.block_on(client.identify(req.clone())).unwrap())
+            b.iter(|| rt.block_on(served.client.identify(req.clone())).unwrap())
         });
-        token.cancel();
+        drop(served);
     }
     g.finish();
 }

@@ -95,7 +95,9 @@ pub fn channel(uri: &str) -> Result<TracedChannel, AddressError> {
 fn host_port(target: &str) -> Option<(&str, u16)> {
     let (host, port) = target.rsplit_once(':')?;
     let host = host.strip_prefix('[').and_then(|h| h.strip_suffix(']')).unwrap_or(host);
-    (!host.is_empty() && !host.contains('/')).then_some(())?;
+    if host.is_empty() || host.contains('/') {
+        return None;
+    }
     Some((host, port.parse().ok()?))
 }
 

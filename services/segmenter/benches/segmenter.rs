@@ -63,13 +63,12 @@ fn service(c: &mut Criterion) {
     let (rgb, depth) = scene(&cam);
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     let cfg = vlnav_runtime::ServerConfig::default();
-    let mut client = rt.block_on(async {
+    let (server, mut client) = rt.block_on(async {
         let set = vlnav_segmenter::services(&Default::default(), &cfg).await.unwrap();
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = listener.local_addr().unwrap();
-        tokio::spawn(async move { vlnav_runtime::serve(&cfg, listener, set, vlnav_runtime::CancellationToken::new()).await });
+        let server = vlnav_runtime::testing::start(&cfg, set).await.unwrap();
         // The channel the gateway uses (HTTP/2 windows sized for frames).
-        SegmenterServiceClient::new(vlnav_runtime::client::channel(&format!("http://{addr}")).unwrap())
+        let client = SegmenterServiceClient::new(server.traced_channel().unwrap());
+        (server, client)
     });
     let frame = RgbdFrame {
         camera: Some(CameraInfo {
@@ -89,6 +88,7 @@ fn service(c: &mut Criterion) {
     g.sample_size(20);
     g.bench_function("segment/colour/640x480-mask-stride-4", |b| b.iter(|| rt.block_on(client.segment(req.clone())).unwrap()));
     g.finish();
+    drop((client, server));
 }
 
 criterion_group!(benches, pipeline, service);
