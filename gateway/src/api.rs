@@ -14,10 +14,12 @@ use vlnav_proto::v1::{
     AnswerClarificationRequest, AnswerClarificationResponse, Audio, AudioChunk, AudioFormat, CancelMissionRequest,
     ClarificationNeeded, EdgeMessage, Finished, GatewayCommand, GetMissionRequest, ListMissionsRequest,
     ListMissionsResponse, ListRobotsRequest, ListRobotsResponse, Mission, MissionEvent, MissionState, PlanReady,
-    PlanRequest, SubmitMissionRequest, SubmitMissionResponse, Transcribed, WatchMissionRequest, answer_clarification_response,
-    edge_message, fleet_service_server::{FleetService, FleetServiceServer}, mission_event::Kind,
-    mission_service_server::{MissionService, MissionServiceServer}, plan_response, submit_mission_request,
-    submit_mission_response,
+    PlanRequest, SubmitMissionRequest, SubmitMissionResponse, Transcribed, WatchMissionRequest,
+    answer_clarification_response, edge_message,
+    fleet_service_server::{FleetService, FleetServiceServer},
+    mission_event::Kind,
+    mission_service_server::{MissionService, MissionServiceServer},
+    plan_response, submit_mission_request, submit_mission_response,
 };
 use vlnav_runtime::{ServerConfig, ServiceSet};
 
@@ -79,14 +81,19 @@ impl Gateway {
                 "mission-api",
                 MissionServiceServer::new(self.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
             )
-            .add("fleet", FleetServiceServer::new(self.clone()).max_decoding_message_size(max).max_encoding_message_size(max))
+            .add(
+                "fleet",
+                FleetServiceServer::new(self.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
+            )
     }
 
     fn mission(&self, id: &str) -> Result<Mission, Status> {
         if id.trim().is_empty() {
             return Err(Status::invalid_argument("mission_id is empty"));
         }
-        self.hub().get(id).ok_or_else(|| Status::not_found(format!("no mission with id '{id}'; ListMissions shows the known ones")))
+        self.hub()
+            .get(id)
+            .ok_or_else(|| Status::not_found(format!("no mission with id '{id}'; ListMissions shows the known ones")))
     }
 
     fn fail(&self, id: &str, reason: String) {
@@ -135,7 +142,9 @@ impl Gateway {
             Some(submit_mission_request::Instruction::Audio(a))
                 if !matches!(AudioFormat::try_from(a.format), Ok(AudioFormat::Wav | AudioFormat::Pcm16Mono)) =>
             {
-                return Err(Status::invalid_argument("audio.format must be AUDIO_FORMAT_WAV or AUDIO_FORMAT_PCM16_MONO"));
+                return Err(Status::invalid_argument(
+                    "audio.format must be AUDIO_FORMAT_WAV or AUDIO_FORMAT_PCM16_MONO",
+                ));
             }
             _ => {}
         }
@@ -143,7 +152,8 @@ impl Gateway {
         if !req.dry_run {
             self.fleet.reserve(&robot_id, &mission_id).await?;
         }
-        let span = tracing::info_span!("mission", mission.id = %mission_id, robot.id = %robot_id, dry_run = req.dry_run);
+        let span =
+            tracing::info_span!("mission", mission.id = %mission_id, robot.id = %robot_id, dry_run = req.dry_run);
         let trace_id = {
             use opentelemetry::trace::TraceContextExt;
             use tracing_opentelemetry::OpenTelemetrySpanExt;
@@ -194,7 +204,10 @@ impl Gateway {
             hub.record(
                 mission_id,
                 0.0,
-                Some(Kind::Transcribed(Transcribed { transcript: text.clone(), audio_seconds: transcript.audio_seconds })),
+                Some(Kind::Transcribed(Transcribed {
+                    transcript: text.clone(),
+                    audio_seconds: transcript.audio_seconds,
+                })),
                 move |m| m.instruction = t,
             )
             .map_err(|e| Status::internal(e.to_string()))?;
@@ -202,7 +215,13 @@ impl Gateway {
                 return Err(Status::invalid_argument("no speech was recognised in the audio"));
             }
         }
-        let planned = self.pipeline().planner.clone().plan(PlanRequest { instruction: text.clone(), backend: String::new() }).await?.into_inner();
+        let planned = self
+            .pipeline()
+            .planner
+            .clone()
+            .plan(PlanRequest { instruction: text.clone(), backend: String::new() })
+            .await?
+            .into_inner();
         let mut response = SubmitMissionResponse {
             mission_id: mission_id.to_string(),
             transcript: text.clone(),
@@ -223,7 +242,11 @@ impl Gateway {
                 hub.record(
                     mission_id,
                     0.0,
-                    Some(Kind::Plan(PlanReady { plan: Some(plan.clone()), plan_json: plan_json.clone(), backend: backend.clone() })),
+                    Some(Kind::Plan(PlanReady {
+                        plan: Some(plan.clone()),
+                        plan_json: plan_json.clone(),
+                        backend: backend.clone(),
+                    })),
                     move |m| {
                         m.plan = Some(p);
                         m.plan_json = pj;
@@ -250,10 +273,15 @@ impl Gateway {
         if req.dry_run {
             let finished = Finished {
                 state: MissionState::Planned as i32,
-                reason: if clarification.is_some() { "dry run: the planner needs an answer first".into() } else { "dry run: planned and validated, nothing moved".into() },
+                reason: if clarification.is_some() {
+                    "dry run: the planner needs an answer first".into()
+                } else {
+                    "dry run: planned and validated, nothing moved".into()
+                },
                 metrics: None,
             };
-            hub.record(mission_id, 0.0, Some(Kind::Finished(finished)), |_| {}).map_err(|e| Status::internal(e.to_string()))?;
+            hub.record(mission_id, 0.0, Some(Kind::Finished(finished)), |_| {})
+                .map_err(|e| Status::internal(e.to_string()))?;
             response.state = MissionState::Planned as i32;
         } else {
             let run = MissionRun::new(
@@ -266,7 +294,8 @@ impl Gateway {
             );
             self.fleet.start(robot_id, run).await?;
             response.state =
-                if clarification.is_some() { MissionState::AwaitingClarification } else { MissionState::Pending } as i32;
+                if clarification.is_some() { MissionState::AwaitingClarification } else { MissionState::Pending }
+                    as i32;
         }
         response.outcome = Some(match clarification {
             Some(c) => submit_mission_response::Outcome::Clarification(c),
@@ -281,13 +310,19 @@ type CommandStream = ReceiverStream<Result<GatewayCommand, Status>>;
 
 #[tonic::async_trait]
 impl MissionService for Gateway {
-    async fn submit_mission(&self, request: Request<SubmitMissionRequest>) -> Result<Response<SubmitMissionResponse>, Status> {
+    async fn submit_mission(
+        &self,
+        request: Request<SubmitMissionRequest>,
+    ) -> Result<Response<SubmitMissionResponse>, Status> {
         self.submit(request.into_inner()).await.map(Response::new)
     }
 
     type WatchMissionStream = EventStream;
 
-    async fn watch_mission(&self, request: Request<WatchMissionRequest>) -> Result<Response<Self::WatchMissionStream>, Status> {
+    async fn watch_mission(
+        &self,
+        request: Request<WatchMissionRequest>,
+    ) -> Result<Response<Self::WatchMissionStream>, Status> {
         let id = request.into_inner().mission_id;
         self.mission(&id)?;
         let watch = self.hub().watch(&id).ok_or_else(|| Status::not_found(format!("no mission with id '{id}'")))?;
@@ -331,7 +366,10 @@ impl MissionService for Gateway {
         self.mission(&request.into_inner().mission_id).map(Response::new)
     }
 
-    async fn list_missions(&self, request: Request<ListMissionsRequest>) -> Result<Response<ListMissionsResponse>, Status> {
+    async fn list_missions(
+        &self,
+        request: Request<ListMissionsRequest>,
+    ) -> Result<Response<ListMissionsResponse>, Status> {
         let req = request.into_inner();
         let limit = match req.limit {
             0 => 100,
@@ -403,7 +441,11 @@ impl FleetService for Gateway {
         let mut inbound = request.into_inner();
         let hello = match inbound.message().await? {
             Some(EdgeMessage { kind: Some(edge_message::Kind::Hello(h)) }) => h,
-            _ => return Err(Status::invalid_argument("the first message on Attach must be an EdgeHello naming the robot")),
+            _ => {
+                return Err(Status::invalid_argument(
+                    "the first message on Attach must be an EdgeHello naming the robot",
+                ));
+            }
         };
         if !valid_robot_id(&hello.robot_id) {
             return Err(Status::invalid_argument(format!(

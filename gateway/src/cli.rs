@@ -45,19 +45,28 @@ pub fn describe_event(e: &MissionEvent) -> String {
     let what = match &e.kind {
         Some(Kind::Transcribed(t)) => format!("heard: \"{}\" ({:.1} s of speech)", t.transcript, t.audio_seconds),
         Some(Kind::Plan(p)) => format!("plan ({}): {}", p.backend, p.plan_json),
-        Some(Kind::StepStarted(s)) => format!(
-            "step {} started: {}",
-            s.index + 1,
-            s.step.as_ref().map(describe_step).unwrap_or_default()
-        ),
+        Some(Kind::StepStarted(s)) => {
+            format!("step {} started: {}", s.index + 1, s.step.as_ref().map(describe_step).unwrap_or_default())
+        }
         Some(Kind::TargetSeen(t)) => {
             let p = t.target.unwrap_or_default();
-            let who = if t.identity.is_empty() { String::new() } else { format!(" ({} {:.2})", t.identity, t.identity_similarity) };
+            let who = if t.identity.is_empty() {
+                String::new()
+            } else {
+                format!(" ({} {:.2})", t.identity, t.identity_similarity)
+            };
             format!("step {}: target seen{who} at ({:.2}, {:.2}) m, {:.2} m away", t.index + 1, p.x, p.y, t.range_m)
         }
         Some(Kind::SubgoalReached(r)) => {
             let p = r.pose.unwrap_or_default();
-            format!("step {}: reached, pose ({:.2}, {:.2}, {:.2} rad), {:.2} m from the goal", r.index + 1, p.x, p.y, p.theta, r.error_m)
+            format!(
+                "step {}: reached, pose ({:.2}, {:.2}, {:.2} rad), {:.2} m from the goal",
+                r.index + 1,
+                p.x,
+                p.y,
+                p.theta,
+                r.error_m
+            )
         }
         Some(Kind::Exploring(x)) => format!("step {}: exploring ({} #{})", x.index + 1, x.phase, x.attempt),
         Some(Kind::ClarificationNeeded(c)) => {
@@ -135,7 +144,8 @@ pub async fn run_mission(args: &MissionArgs, out: &mut (impl Write + Send)) -> a
         Some(submit_mission_response::Outcome::Clarification(c)) => writeln!(out, "question: {}", c.question)?,
         None => {}
     }
-    let mut events = client.watch_mission(WatchMissionRequest { mission_id: resp.mission_id.clone() }).await?.into_inner();
+    let mut events =
+        client.watch_mission(WatchMissionRequest { mission_id: resp.mission_id.clone() }).await?.into_inner();
     while let Some(e) = events.message().await? {
         writeln!(out, "{}", describe_event(&e))?;
         out.flush()?;

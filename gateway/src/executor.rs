@@ -27,11 +27,11 @@ use std::time::Duration;
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 use vlnav_proto::v1::{
-    ActionKind, ActionStep, BoundingBox, Clarification, ClarificationNeeded, DetectRequest, EstimateStatus,
-    Exploring, Finished, Goal, IdentifyRequest, LocalPlanStatus, MissionMetrics, MissionState, MoveGoalRequest,
-    PlanStepRequest, Point3, Pose2D, Replanned, ReplanRequest, ResetRobotRequest, RgbdFrame, SegmentRequest,
-    SensorFrame, SimTruth, StepFailed, StepStarted, SubgoalReached, TargetGoalRequest, TargetSeen, Twist2D,
-    mission_event::Kind, plan_response,
+    ActionKind, ActionStep, BoundingBox, Clarification, ClarificationNeeded, DetectRequest, EstimateStatus, Exploring,
+    Finished, Goal, IdentifyRequest, LocalPlanStatus, MissionMetrics, MissionState, MoveGoalRequest, PlanStepRequest,
+    Point3, Pose2D, ReplanRequest, Replanned, ResetRobotRequest, RgbdFrame, SegmentRequest, SensorFrame, SimTruth,
+    StepFailed, StepStarted, SubgoalReached, TargetGoalRequest, TargetSeen, Twist2D, mission_event::Kind,
+    plan_response,
 };
 
 use crate::config::ExecutorParams;
@@ -111,7 +111,13 @@ impl MetricsAcc {
         }
     }
 
-    fn to_proto(&self, steps_completed: u32, steps_total: u32, replans: u32, last_goal: Option<&Pose2D>) -> MissionMetrics {
+    fn to_proto(
+        &self,
+        steps_completed: u32,
+        steps_total: u32,
+        replans: u32,
+        last_goal: Option<&Pose2D>,
+    ) -> MissionMetrics {
         let mut m = MissionMetrics {
             duration_s: self.first_stamp.map_or(0.0, |f| self.last_stamp - f),
             odom_path_length_m: self.odom_path,
@@ -172,9 +178,24 @@ enum Explore {
     /// `since`: the stamp the turn or leg began.
     /// `origin`: the pose the look-around began at; its turns are counted
     /// from it, so each turn's tolerance does not shrink the look-around.
-    Turn { goal: Goal, turn: u32, leg: u32, since: f64, origin: Pose2D },
-    Look { frames_left: u32, turn: u32, leg: u32, origin: Pose2D },
-    Search { goal: Goal, leg: u32, since: f64 },
+    Turn {
+        goal: Goal,
+        turn: u32,
+        leg: u32,
+        since: f64,
+        origin: Pose2D,
+    },
+    Look {
+        frames_left: u32,
+        turn: u32,
+        leg: u32,
+        origin: Pose2D,
+    },
+    Search {
+        goal: Goal,
+        leg: u32,
+        since: f64,
+    },
 }
 
 struct FindRun {
@@ -271,7 +292,8 @@ fn target_view(frame: &RgbdFrame, pose: &Pose2D, target: &Point3) -> Option<Targ
     let (w, h) = (camera.width as f64, camera.height as f64);
     let base = vlnav_subgoal::geometry::Pose2::new(pose.x, pose.y, pose.theta)
         .odom_to_base(&nalgebra::Vector2::new(target.x, target.y));
-    let pixel = vlnav_subgoal::camera::Projector::new(&camera).pixel_of(nalgebra::Vector3::new(base.x, base.y, target.z));
+    let pixel =
+        vlnav_subgoal::camera::Projector::new(&camera).pixel_of(nalgebra::Vector3::new(base.x, base.y, target.z));
     Some(match pixel {
         Some((u, v, _)) if (0.0..w).contains(&u) && (0.0..h).contains(&v) => TargetView::At(u as f32, v as f32),
         _ => TargetView::OutOfView,
@@ -365,7 +387,8 @@ impl MissionRun {
         self.metrics.observe(frame.stamp, &pose, sf.truth.as_ref());
         self.start_pose.get_or_insert(pose);
         let step_span = self.step.as_ref().map_or_else(|| self.span.clone(), |s| s.span.clone());
-        let cycle = tracing::info_span!(parent: &step_span, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
+        let cycle =
+            tracing::info_span!(parent: &step_span, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
         let result = self.tick(ctx, frame, &pose).instrument(cycle.clone()).await;
         match result {
             Ok((twist, finished)) => {
@@ -519,7 +542,12 @@ impl MissionRun {
                         .pipeline
                         .subgoal
                         .clone()
-                        .move_goal(MoveGoalRequest { anchor: Some(anchor), f_dist: step.f_dist, yaw: step.yaw, d_s: step.d_s })
+                        .move_goal(MoveGoalRequest {
+                            anchor: Some(anchor),
+                            f_dist: step.f_dist,
+                            yaw: step.yaw,
+                            d_s: step.d_s,
+                        })
                         .await
                         .map_err(stage("subgoal"))?
                         .into_inner();
@@ -631,7 +659,11 @@ impl MissionRun {
 
     /// The user's answer: the planner revises the steps from the one that
     /// failed on. Returns the revised full plan, or a further question.
-    pub async fn answer(&mut self, ctx: &Ctx<'_>, answer: &str) -> Result<Result<Vec<ActionStep>, Clarification>, tonic::Status> {
+    pub async fn answer(
+        &mut self,
+        ctx: &Ctx<'_>,
+        answer: &str,
+    ) -> Result<Result<Vec<ActionStep>, Clarification>, tonic::Status> {
         let Some((_, failure)) = self.awaiting.clone() else {
             return Err(tonic::Status::failed_precondition(format!(
                 "mission {} is not waiting for an answer",
@@ -665,7 +697,12 @@ impl MissionRun {
                 self.emit(
                     ctx,
                     stamp,
-                    Kind::Replanned(Replanned { plan: Some(full), plan_json: plan_json.clone(), answer: answer.to_string(), resume_index: resume }),
+                    Kind::Replanned(Replanned {
+                        plan: Some(full),
+                        plan_json: plan_json.clone(),
+                        answer: answer.to_string(),
+                        resume_index: resume,
+                    }),
                     move |m| {
                         m.plan = Some(full2);
                         // The planner's JSON covers the revised steps (from resume_index on).
@@ -696,7 +733,12 @@ impl MissionRun {
         }
     }
 
-    async fn replan(&self, ctx: &Ctx<'_>, answer: &str, failure: String) -> Result<vlnav_proto::v1::PlanResponse, tonic::Status> {
+    async fn replan(
+        &self,
+        ctx: &Ctx<'_>,
+        answer: &str,
+        failure: String,
+    ) -> Result<vlnav_proto::v1::PlanResponse, tonic::Status> {
         Ok(ctx
             .pipeline
             .planner
@@ -719,7 +761,12 @@ impl MissionRun {
             .pipeline
             .segmenter
             .clone()
-            .segment(SegmentRequest { frame: Some(frame.clone()), classes: vec![], return_mask: false, point_stride: 0 })
+            .segment(SegmentRequest {
+                frame: Some(frame.clone()),
+                classes: vec![],
+                return_mask: false,
+                point_stride: 0,
+            })
             .await
             .map_err(stage("segmenter"))?
             .into_inner();
@@ -766,7 +813,12 @@ impl MissionRun {
                 .pipeline
                 .reid
                 .clone()
-                .identify(IdentifyRequest { frame: Some(frame.clone()), boxes: boxes.clone(), threshold: 0.0, name: f.person.clone() })
+                .identify(IdentifyRequest {
+                    frame: Some(frame.clone()),
+                    boxes: boxes.clone(),
+                    threshold: 0.0,
+                    name: f.person.clone(),
+                })
                 .await
                 .map_err(stage("reid"))?
                 .into_inner();
@@ -775,7 +827,9 @@ impl MissionRun {
                 .iter()
                 .filter(|i| i.matched && i.name.eq_ignore_ascii_case(&f.person))
                 .max_by(|a, b| a.similarity.total_cmp(&b.similarity));
-            return Ok(best.and_then(|i| boxes.get(i.box_index as usize).map(|b| (b.clone(), i.name.clone(), i.similarity))));
+            return Ok(
+                best.and_then(|i| boxes.get(i.box_index as usize).map(|b| (b.clone(), i.name.clone(), i.similarity)))
+            );
         }
         // A confirmed fixed target: the box where it projects, if it is in view.
         if f.confirmed && !f.moving {
@@ -934,19 +988,30 @@ impl MissionRun {
                 (Explore::Look { frames_left: frames_left - 1, turn, leg, origin }, zero())
             }
             Explore::Look { turn, leg, origin, .. } => match after_look(turn, leg, params) {
-                ExplorePlan::Turn(t) => {
-                    (Explore::Turn { goal: turn_goal(ctx, origin, t).await?, turn: t, leg, since: stamp, origin }, zero())
-                }
+                ExplorePlan::Turn(t) => (
+                    Explore::Turn { goal: turn_goal(ctx, origin, t).await?, turn: t, leg, since: stamp, origin },
+                    zero(),
+                ),
                 ExplorePlan::Search(l) => {
                     let goal = ctx
                         .pipeline
                         .subgoal
                         .clone()
-                        .move_goal(MoveGoalRequest { anchor: Some(*pose), f_dist: params.search_leg_m, yaw: 0.0, d_s: 0.0 })
+                        .move_goal(MoveGoalRequest {
+                            anchor: Some(*pose),
+                            f_dist: params.search_leg_m,
+                            yaw: 0.0,
+                            d_s: 0.0,
+                        })
                         .await
                         .map_err(stage("subgoal"))?
                         .into_inner();
-                    self.emit(ctx, stamp, Kind::Exploring(Exploring { index, phase: "search".into(), attempt: l }), |_| {});
+                    self.emit(
+                        ctx,
+                        stamp,
+                        Kind::Exploring(Exploring { index, phase: "search".into(), attempt: l }),
+                        |_| {},
+                    );
                     (Explore::Search { goal, leg: l, since: stamp }, zero())
                 }
                 ExplorePlan::Ask => {
@@ -972,9 +1037,28 @@ impl MissionRun {
                 let plan = self.local_plan(ctx, frame, &goal, no_go).await?;
                 let status = LocalPlanStatus::try_from(plan.status).unwrap_or(LocalPlanStatus::Unspecified);
                 let overdue = stamp - since >= params.search_leg_m / SEARCH_MIN_SPEED + SCAN_TURN_LIMIT_S;
-                if overdue || matches!(status, LocalPlanStatus::Reached | LocalPlanStatus::Blocked | LocalPlanStatus::NoProgress) {
-                    self.emit(ctx, stamp, Kind::Exploring(Exploring { index, phase: "scan".into(), attempt: leg + 1 }), |_| {});
-                    (Explore::Turn { goal: turn_goal(ctx, *pose, 0).await?, turn: 0, leg, since: stamp, origin: *pose }, zero())
+                if overdue
+                    || matches!(
+                        status,
+                        LocalPlanStatus::Reached | LocalPlanStatus::Blocked | LocalPlanStatus::NoProgress
+                    )
+                {
+                    self.emit(
+                        ctx,
+                        stamp,
+                        Kind::Exploring(Exploring { index, phase: "scan".into(), attempt: leg + 1 }),
+                        |_| {},
+                    );
+                    (
+                        Explore::Turn {
+                            goal: turn_goal(ctx, *pose, 0).await?,
+                            turn: 0,
+                            leg,
+                            since: stamp,
+                            origin: *pose,
+                        },
+                        zero(),
+                    )
                 } else {
                     (Explore::Search { goal, leg, since }, plan.cmd.unwrap_or_default())
                 }

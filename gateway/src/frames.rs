@@ -13,7 +13,9 @@ pub enum FrameError {
     NotFinite { seq: u64, field: &'static str, value: f64 },
     #[error("frame {seq}: {what}")]
     Invalid { seq: u64, what: String },
-    #[error("frame {seq}: stamp {stamp} s is older than the previous frame's {previous} s; sensor time must not go backwards")]
+    #[error(
+        "frame {seq}: stamp {stamp} s is older than the previous frame's {previous} s; sensor time must not go backwards"
+    )]
     StampBackwards { seq: u64, stamp: f64, previous: f64 },
 }
 
@@ -98,7 +100,11 @@ pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(),
             _ => {
                 return Err(FrameError::Invalid {
                     seq,
-                    what: format!("rgb encoding {} with {} bytes is not a usable image (RGB8, PNG or JPEG)", rgb.encoding, rgb.data.len()),
+                    what: format!(
+                        "rgb encoding {} with {} bytes is not a usable image (RGB8, PNG or JPEG)",
+                        rgb.encoding,
+                        rgb.data.len()
+                    ),
                 });
             }
         }
@@ -138,7 +144,12 @@ pub(crate) mod tests {
                 depth_min_m: 0.3,
                 depth_max_m: 10.0,
             }),
-            rgb: Some(Image { width: w, height: h, encoding: ImageEncoding::Rgb8 as i32, data: vec![0; (w * h * 3) as usize] }),
+            rgb: Some(Image {
+                width: w,
+                height: h,
+                encoding: ImageEncoding::Rgb8 as i32,
+                data: vec![0; (w * h * 3) as usize],
+            }),
             depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize] }),
             odom: Some(Pose2D { x: 0.0, y: 0.0, theta: 0.0 }),
             odom_twist: None,

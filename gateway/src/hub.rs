@@ -11,10 +11,7 @@ use vlnav_proto::v1::{Finished, Mission, MissionEvent, MissionState, mission_eve
 use crate::store::{Store, StoreError};
 
 pub fn is_terminal(state: MissionState) -> bool {
-    matches!(
-        state,
-        MissionState::Succeeded | MissionState::Failed | MissionState::Cancelled | MissionState::Planned
-    )
+    matches!(state, MissionState::Succeeded | MissionState::Failed | MissionState::Cancelled | MissionState::Planned)
 }
 
 struct Entry {
@@ -163,8 +160,13 @@ mod tests {
             let hub = Hub::open(Store::open(dir.path()).unwrap()).unwrap();
             hub.create(mission("m-done", MissionState::Running)).unwrap();
             hub.create(mission("m-open", MissionState::Running)).unwrap();
-            hub.record("m-open", 0.0, Some(Kind::Transcribed(Transcribed { transcript: "hi".into(), audio_seconds: 1.0 })), |_| {})
-                .unwrap();
+            hub.record(
+                "m-open",
+                0.0,
+                Some(Kind::Transcribed(Transcribed { transcript: "hi".into(), audio_seconds: 1.0 })),
+                |_| {},
+            )
+            .unwrap();
             hub.record("m-open", 2.5, Some(Kind::StepStarted(StepStarted { index: 0, ..Default::default() })), |m| {
                 m.current_step = 0
             })

@@ -22,16 +22,48 @@ use crate::pipeline::Pipeline;
 pub type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
 
 pub enum RobotMsg {
-    Attach { hello: EdgeHello, outbound: Outbound, conn: u64, reply: oneshot::Sender<Result<(), Status>> },
-    Frame { conn: u64, frame: Box<SensorFrame> },
-    Odometry { conn: u64, odometry: OdometryUpdate },
-    Status { conn: u64, status: EdgeStatus },
-    Detach { conn: u64, reason: String },
-    Reserve { mission_id: String, reply: oneshot::Sender<Result<(), Status>> },
-    Release { mission_id: String },
-    Start { run: Box<MissionRun>, reply: oneshot::Sender<Result<(), Status>> },
-    Cancel { mission_id: String, reply: oneshot::Sender<Result<(), Status>> },
-    Answer { mission_id: String, answer: String, reply: oneshot::Sender<Result<Result<Vec<ActionStep>, Clarification>, Status>> },
+    Attach {
+        hello: EdgeHello,
+        outbound: Outbound,
+        conn: u64,
+        reply: oneshot::Sender<Result<(), Status>>,
+    },
+    Frame {
+        conn: u64,
+        frame: Box<SensorFrame>,
+    },
+    Odometry {
+        conn: u64,
+        odometry: OdometryUpdate,
+    },
+    Status {
+        conn: u64,
+        status: EdgeStatus,
+    },
+    Detach {
+        conn: u64,
+        reason: String,
+    },
+    Reserve {
+        mission_id: String,
+        reply: oneshot::Sender<Result<(), Status>>,
+    },
+    Release {
+        mission_id: String,
+    },
+    Start {
+        run: Box<MissionRun>,
+        reply: oneshot::Sender<Result<(), Status>>,
+    },
+    Cancel {
+        mission_id: String,
+        reply: oneshot::Sender<Result<(), Status>>,
+    },
+    Answer {
+        mission_id: String,
+        answer: String,
+        reply: oneshot::Sender<Result<Result<Vec<ActionStep>, Clarification>, Status>>,
+    },
 }
 
 /// Every robot the gateway has seen, connected or not.
@@ -101,7 +133,12 @@ impl Fleet {
         self.next_conn.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
     }
 
-    pub async fn attach(self: &Arc<Self>, hello: EdgeHello, outbound: Outbound, conn: u64) -> Result<Mailbox<RobotMsg>, Status> {
+    pub async fn attach(
+        self: &Arc<Self>,
+        hello: EdgeHello,
+        outbound: Outbound,
+        conn: u64,
+    ) -> Result<Mailbox<RobotMsg>, Status> {
         let mb = self.robot(&hello.robot_id);
         mb.call(|reply| RobotMsg::Attach { hello, outbound, conn, reply }).await??;
         Ok(mb)
@@ -136,7 +173,12 @@ impl Fleet {
         mb.call(|reply| RobotMsg::Cancel { mission_id: mission_id.to_string(), reply }).await?
     }
 
-    pub async fn answer(&self, robot_id: &str, mission_id: &str, answer: String) -> Result<Result<Vec<ActionStep>, Clarification>, Status> {
+    pub async fn answer(
+        &self,
+        robot_id: &str,
+        mission_id: &str,
+        answer: String,
+    ) -> Result<Result<Vec<ActionStep>, Clarification>, Status> {
         let mb = self.any(robot_id)?;
         mb.call(|reply| RobotMsg::Answer { mission_id: mission_id.to_string(), answer, reply }).await?
     }
@@ -279,8 +321,13 @@ impl RobotActor {
             RobotMsg::Cancel { mission_id, reply } => {
                 let r = match self.run.as_mut() {
                     Some(run) if run.mission_id == mission_id => {
-                        let ctx = Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
-                        run.finish(&ctx, MissionState::Cancelled, "cancelled by the user; the robot was stopped".into());
+                        let ctx =
+                            Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
+                        run.finish(
+                            &ctx,
+                            MissionState::Cancelled,
+                            "cancelled by the user; the robot was stopped".into(),
+                        );
                         self.run = None;
                         self.update(|i| i.active_mission_id.clear());
                         Ok(())
@@ -295,7 +342,8 @@ impl RobotActor {
             RobotMsg::Answer { mission_id, answer, reply } => {
                 let r = match self.run.as_mut() {
                     Some(run) if run.mission_id == mission_id => {
-                        let ctx = Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
+                        let ctx =
+                            Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
                         run.answer(&ctx, &answer).await
                     }
                     _ => Err(Status::failed_precondition(format!(

@@ -148,10 +148,18 @@ pub fn options_from_env<T: clap::Args + clap::FromArgMatches>() -> anyhow::Resul
 
 async fn bind(ephemeral: bool, port: u16) -> anyhow::Result<TcpListener> {
     let addr = SocketAddr::from(([127, 0, 0, 1], if ephemeral { 0 } else { port }));
-    TcpListener::bind(addr).await.map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e} (is another `vlnav up` running?)"))
+    TcpListener::bind(addr)
+        .await
+        .map_err(|e| anyhow::anyhow!("cannot listen on {addr}: {e} (is another `vlnav up` running?)"))
 }
 
-fn spawn_server(tasks: &mut JoinSet<anyhow::Result<()>>, cfg: &ServerConfig, listener: TcpListener, set: ServiceSet, token: &CancellationToken) {
+fn spawn_server(
+    tasks: &mut JoinSet<anyhow::Result<()>>,
+    cfg: &ServerConfig,
+    listener: TcpListener,
+    set: ServiceSet,
+    token: &CancellationToken,
+) {
     let cfg = cfg.clone();
     let token = token.clone();
     tasks.spawn(async move { vlnav_runtime::serve(&cfg, listener, set, token).await });

@@ -5,7 +5,8 @@
 //! still searched first by rosrust.
 
 fn main() {
-    let dir = std::path::Path::new(&std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR")).join("msg");
+    let dir =
+        std::path::Path::new(&std::env::var("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR")).join("msg");
     println!("cargo:rustc-env=ROSRUST_MSG_PATH={}", dir.display());
     println!("cargo:rerun-if-changed=msg");
     println!("cargo:rerun-if-changed=build.rs");

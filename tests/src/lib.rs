@@ -94,8 +94,14 @@ impl TestStack {
                 events.push(e);
             }
         };
-        tokio::time::timeout(limit, collect).await.unwrap_or_else(|_| panic!("mission {mission_id} did not finish within {limit:?}"));
-        let mission = client.get_mission(GetMissionRequest { mission_id: mission_id.into() }).await.expect("GetMission").into_inner();
+        tokio::time::timeout(limit, collect)
+            .await
+            .unwrap_or_else(|_| panic!("mission {mission_id} did not finish within {limit:?}"));
+        let mission = client
+            .get_mission(GetMissionRequest { mission_id: mission_id.into() })
+            .await
+            .expect("GetMission")
+            .into_inner();
         (events, mission)
     }
 }
@@ -113,7 +119,10 @@ pub fn grpcurl(args: &[&str]) -> Result<String, String> {
 
 /// grpcurl prints a stream as concatenated JSON objects.
 pub fn json_objects(text: &str) -> Vec<serde_json::Value> {
-    serde_json::Deserializer::from_str(text).into_iter::<serde_json::Value>().map(|v| v.expect("grpcurl prints JSON")).collect()
+    serde_json::Deserializer::from_str(text)
+        .into_iter::<serde_json::Value>()
+        .map(|v| v.expect("grpcurl prints JSON"))
+        .collect()
 }
 
 /// The paper's Case 2 instruction (SPEC.md §2).

@@ -3,8 +3,9 @@
 
 use vlnav_e2e::TestStack;
 use vlnav_proto::v1::{
-    CameraInfo, CameraIntrinsics, DepthImage, EdgeHello, EdgeMessage, ListRobotsRequest, Pose2D, RgbdFrame, SensorFrame,
-    SubmitMissionRequest, edge_message, fleet_service_client::FleetServiceClient, submit_mission_request::Instruction,
+    CameraInfo, CameraIntrinsics, DepthImage, EdgeHello, EdgeMessage, ListRobotsRequest, Pose2D, RgbdFrame,
+    SensorFrame, SubmitMissionRequest, edge_message, fleet_service_client::FleetServiceClient,
+    submit_mission_request::Instruction,
 };
 
 fn text(robot: &str, t: &str, dry_run: bool) -> SubmitMissionRequest {
@@ -36,7 +37,13 @@ fn frame(robot: &str, seq: u64, w: u32, h: u32, theta: f64) -> EdgeMessage {
 }
 
 fn hello(robot: &str) -> EdgeMessage {
-    EdgeMessage { kind: Some(edge_message::Kind::Hello(EdgeHello { robot_id: robot.into(), driver: "test".into(), ..Default::default() })) }
+    EdgeMessage {
+        kind: Some(edge_message::Kind::Hello(EdgeHello {
+            robot_id: robot.into(),
+            driver: "test".into(),
+            ..Default::default()
+        })),
+    }
 }
 
 /// Attaches as `robot`, sends `msgs`, returns the status that ends the command stream.
@@ -52,7 +59,10 @@ async fn attach_and_send(uri: &str, msgs: Vec<EdgeMessage>) -> tonic::Status {
         Ok(resp) => {
             let mut commands = resp.into_inner();
             loop {
-                match tokio::time::timeout(std::time::Duration::from_secs(20), commands.message()).await.expect("the gateway answers") {
+                match tokio::time::timeout(std::time::Duration::from_secs(20), commands.message())
+                    .await
+                    .expect("the gateway answers")
+                {
                     Ok(Some(_)) => continue,
                     Ok(None) => panic!("stream ended without an error status"),
                     Err(s) => break s,
@@ -95,7 +105,9 @@ async fn bad_input_gets_clear_statuses_and_the_gateway_keeps_serving() {
 
     // Malformed frames from an edge agent: NaN pose, wrong depth size, oversize, no hello.
     let uri = t.uri();
-    let s = attach_and_send(&uri, vec![hello("bad-1"), frame("bad-1", 1, 8, 6, 0.0), frame("bad-1", 2, 8, 6, f64::NAN)]).await;
+    let s =
+        attach_and_send(&uri, vec![hello("bad-1"), frame("bad-1", 1, 8, 6, 0.0), frame("bad-1", 2, 8, 6, f64::NAN)])
+            .await;
     assert_eq!(s.code(), tonic::Code::InvalidArgument, "{s:?}");
     assert!(s.message().contains("odom.theta is not a finite number"), "{}", s.message());
 

@@ -12,7 +12,12 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
     let addr = t.addr();
 
     let services = grpcurl(&["-plaintext", &addr, "list"]).expect("grpcurl list");
-    for s in ["vlnav.v1.MissionService", "vlnav.v1.FleetService", "grpc.health.v1.Health", "grpc.reflection.v1alpha.ServerReflection"] {
+    for s in [
+        "vlnav.v1.MissionService",
+        "vlnav.v1.FleetService",
+        "grpc.health.v1.Health",
+        "grpc.reflection.v1alpha.ServerReflection",
+    ] {
         assert!(services.lines().any(|l| l.trim() == s), "`grpcurl list` lacks {s}:\n{services}");
     }
 
@@ -35,11 +40,14 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
     }
 
     let body = serde_json::json!({"robot_id": "husky-1", "text": CASE_2}).to_string();
-    let out = grpcurl(&["-plaintext", "-d", &body, &addr, "vlnav.v1.MissionService/SubmitMission"]).expect("SubmitMission");
+    let out =
+        grpcurl(&["-plaintext", "-d", &body, &addr, "vlnav.v1.MissionService/SubmitMission"]).expect("SubmitMission");
     let submitted: serde_json::Value = serde_json::from_str(&out).expect("JSON");
     let id = submitted["missionId"].as_str().expect("missionId").to_string();
-    let plan_json: serde_json::Value = serde_json::from_str(submitted["planJson"].as_str().expect("planJson")).expect("plan_json is JSON");
-    let actions: Vec<&str> = plan_json.as_array().expect("array").iter().map(|s| s["action"].as_str().unwrap()).collect();
+    let plan_json: serde_json::Value =
+        serde_json::from_str(submitted["planJson"].as_str().expect("planJson")).expect("plan_json is JSON");
+    let actions: Vec<&str> =
+        plan_json.as_array().expect("array").iter().map(|s| s["action"].as_str().unwrap()).collect();
     assert_eq!(actions, ["MOVE", "FIND", "FIND", "FIND"], "{plan_json}");
 
     let watch_body = serde_json::json!({"mission_id": id}).to_string();
@@ -47,7 +55,15 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
     let events = tokio::time::timeout(
         Duration::from_secs(600),
         tokio::task::spawn_blocking(move || {
-            grpcurl(&["-plaintext", "-max-time", "590", "-d", &watch_body, &addr2, "vlnav.v1.MissionService/WatchMission"])
+            grpcurl(&[
+                "-plaintext",
+                "-max-time",
+                "590",
+                "-d",
+                &watch_body,
+                &addr2,
+                "vlnav.v1.MissionService/WatchMission",
+            ])
         }),
     )
     .await
@@ -55,19 +71,36 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
     .unwrap()
     .expect("WatchMission");
     let events = json_objects(&events);
-    let kinds: Vec<String> =
-        events.iter().map(|e| e.as_object().unwrap().keys().find(|k| !["missionId", "seq", "stamp"].contains(&k.as_str())).cloned().unwrap_or_default()).collect();
+    let kinds: Vec<String> = events
+        .iter()
+        .map(|e| {
+            e.as_object()
+                .unwrap()
+                .keys()
+                .find(|k| !["missionId", "seq", "stamp"].contains(&k.as_str()))
+                .cloned()
+                .unwrap_or_default()
+        })
+        .collect();
     for step in 0..4 {
-        let started = events.iter().any(|e| e.get("stepStarted").is_some_and(|s| s["index"].as_u64().unwrap_or(0) == step));
-        let reached = events.iter().any(|e| e.get("subgoalReached").is_some_and(|s| s["index"].as_u64().unwrap_or(0) == step));
+        let started =
+            events.iter().any(|e| e.get("stepStarted").is_some_and(|s| s["index"].as_u64().unwrap_or(0) == step));
+        let reached =
+            events.iter().any(|e| e.get("subgoalReached").is_some_and(|s| s["index"].as_u64().unwrap_or(0) == step));
         assert!(started && reached, "step {step} was not both started and reached; events: {kinds:?}");
     }
     assert!(events.iter().filter(|e| e.get("targetSeen").is_some()).count() >= 3, "three targets seen: {kinds:?}");
     let last = events.last().expect("events");
     assert_eq!(last["finished"]["state"], "MISSION_STATE_SUCCEEDED", "{last}");
 
-    let got = grpcurl(&["-plaintext", "-d", &serde_json::json!({"mission_id": id}).to_string(), &addr, "vlnav.v1.MissionService/GetMission"])
-        .expect("GetMission");
+    let got = grpcurl(&[
+        "-plaintext",
+        "-d",
+        &serde_json::json!({"mission_id": id}).to_string(),
+        &addr,
+        "vlnav.v1.MissionService/GetMission",
+    ])
+    .expect("GetMission");
     let got: serde_json::Value = serde_json::from_str(&got).unwrap();
     assert_eq!(got["state"], "MISSION_STATE_SUCCEEDED");
     t.stack.shutdown().await.unwrap();

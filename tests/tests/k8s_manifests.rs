@@ -217,7 +217,10 @@ fn check_rules(label: &str, objs: &[Value]) {
     }
 
     // Autoscaling: the stateless services, and only those.
-    let hpas: BTreeSet<&str> = of_kind(objs, "HorizontalPodAutoscaler").iter().map(|h| get(h, "spec.scaleTargetRef.name").as_str().unwrap()).collect();
+    let hpas: BTreeSet<&str> = of_kind(objs, "HorizontalPodAutoscaler")
+        .iter()
+        .map(|h| get(h, "spec.scaleTargetRef.name").as_str().unwrap())
+        .collect();
     let stateless: BTreeSet<&str> = ["detector", "ingress", "planner", "segmenter"].into();
     assert_eq!(hpas, stateless, "{label}: HPAs");
     for d in &deployments {
@@ -237,7 +240,9 @@ fn check_rules(label: &str, objs: &[Value]) {
     for p in &policies {
         for rule in p["spec"]["ingress"].as_array().into_iter().flatten() {
             let from = rule["from"].as_array();
-            let open = from.is_none_or(|f| f.iter().any(|peer| !peer["namespaceSelector"].is_null() || !peer["ipBlock"].is_null()));
+            let open = from.is_none_or(|f| {
+                f.iter().any(|peer| !peer["namespaceSelector"].is_null() || !peer["ipBlock"].is_null())
+            });
             if open {
                 assert_eq!(
                     get(p, "spec.podSelector.matchLabels")["app.kubernetes.io/name"],
@@ -263,7 +268,11 @@ fn check_rules(label: &str, objs: &[Value]) {
                     .unwrap_or_else(|| panic!("{label}: no headless Service {svc}-replicas"));
                 assert_eq!(get(headless, "spec.clusterIP"), "None", "{label}/{svc}-replicas: headless");
                 assert_eq!(get(headless, "spec.ports")[0]["port"], port, "{label}/{svc}-replicas: port");
-                assert_eq!(get(headless, "spec.selector")["app.kubernetes.io/name"], svc, "{label}/{svc}-replicas: selector");
+                assert_eq!(
+                    get(headless, "spec.selector")["app.kubernetes.io/name"],
+                    svc,
+                    "{label}/{svc}-replicas: selector"
+                );
                 format!("dns:///{svc}-replicas:{port}")
             } else {
                 format!("http://{svc}:{port}")
@@ -307,7 +316,11 @@ fn edge_gpu_puts_the_neural_services_on_a_gpu() {
                 assert!(pod["containers"][0]["image"].as_str().unwrap().starts_with("vlnav-cuda:"), "{n}: CUDA build");
                 if n != "reid" {
                     let var = format!("VLNAV_{}_DEVICE", n.to_uppercase());
-                    let set = pod["containers"][0]["env"].as_array().unwrap().iter().any(|e| e["name"] == var.as_str() && e["value"] == "cuda");
+                    let set = pod["containers"][0]["env"]
+                        .as_array()
+                        .unwrap()
+                        .iter()
+                        .any(|e| e["name"] == var.as_str() && e["value"] == "cuda");
                     assert!(set, "{n}: {var}=cuda");
                 }
             }

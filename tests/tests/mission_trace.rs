@@ -28,7 +28,9 @@ async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
     let submitted = missions
         .submit_mission(SubmitMissionRequest {
             robot_id: "husky-1".into(),
-            instruction: Some(Instruction::Text("take a left turn, move 4 m ahead, then find the standing person".into())),
+            instruction: Some(Instruction::Text(
+                "take a left turn, move 4 m ahead, then find the standing person".into(),
+            )),
             dry_run: false,
         })
         .await
@@ -53,7 +55,9 @@ async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
         spans.iter().filter(move |s| s.name == n)
     }
 
-    for stage in ["mission", "plan", "step", "control-cycle", "detect", "segment", "subgoal", "local-plan", "edge-forward"] {
+    for stage in
+        ["mission", "plan", "step", "control-cycle", "detect", "segment", "subgoal", "local-plan", "edge-forward"]
+    {
         assert!(named(&spans, stage).count() > 0, "no `{stage}` span in the mission's trace ({} spans)", spans.len());
     }
     assert!(spans.iter().all(|s| s.trace_id == mission.trace_id));
@@ -77,11 +81,19 @@ async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
     // MOVE goals are computed at step start, FIND goals in the cycle.
     assert!(named(&spans, "subgoal").all(|s| matches!(parent_name(s), Some("control-cycle" | "step"))));
     // Services report who they are.
-    let services: Vec<&str> = spans.iter().filter_map(|s| match s.attributes.get("rpc.service") {
-        Some(vlnav_traces::AttrValue::Str(v)) => Some(v.as_str()),
-        _ => None,
-    }).collect();
-    for svc in ["vlnav.v1.PlannerService", "vlnav.v1.DetectorService", "vlnav.v1.SubgoalService", "vlnav.v1.LocalPlannerService"] {
+    let services: Vec<&str> = spans
+        .iter()
+        .filter_map(|s| match s.attributes.get("rpc.service") {
+            Some(vlnav_traces::AttrValue::Str(v)) => Some(v.as_str()),
+            _ => None,
+        })
+        .collect();
+    for svc in [
+        "vlnav.v1.PlannerService",
+        "vlnav.v1.DetectorService",
+        "vlnav.v1.SubgoalService",
+        "vlnav.v1.LocalPlannerService",
+    ] {
         assert!(services.contains(&svc), "no server span of {svc}");
     }
     t.stack.shutdown().await.unwrap();

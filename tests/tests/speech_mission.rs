@@ -24,8 +24,14 @@ In your right you may see the visitor chair follow it. Finally go at spot where 
 const SPOKEN: [(&str, &str); 5] = [
     (CASE_2, CASE_2_SPOKEN),
     (CASE_1, CASE_1),
-    ("Move five meters forward, take a right turn, and stop near the elephant statue.", "Move five meters forward, take a right turn, and stop near the elephant statue."),
-    ("Turn left and move three meters, then find the person.", "Turn left and move three meters, then find the person."),
+    (
+        "Move five meters forward, take a right turn, and stop near the elephant statue.",
+        "Move five meters forward, take a right turn, and stop near the elephant statue.",
+    ),
+    (
+        "Turn left and move three meters, then find the person.",
+        "Turn left and move three meters, then find the person.",
+    ),
     ("Turn around and go to the person.", "Turn around and go to the person."),
 ];
 
@@ -37,7 +43,9 @@ fn speak(text: &str) -> Vec<u8> {
         .arg(&path)
         .arg(text)
         .status()
-        .unwrap_or_else(|e| panic!("cannot run espeak-ng ({e}): install the Debian package espeak-ng (.ci/apt/ingress.txt)"));
+        .unwrap_or_else(|e| {
+            panic!("cannot run espeak-ng ({e}): install the Debian package espeak-ng (.ci/apt/ingress.txt)")
+        });
     assert!(status.success());
     std::fs::read(path).unwrap()
 }
@@ -46,7 +54,9 @@ fn speak(text: &str) -> Vec<u8> {
 fn essence(steps: &[ActionStep]) -> Vec<(i32, i32, i64, i64, String)> {
     steps
         .iter()
-        .map(|s| (s.action, s.class_id, (s.f_dist * 10.0).round() as i64, (s.yaw * 100.0).round() as i64, s.person.clone()))
+        .map(|s| {
+            (s.action, s.class_id, (s.f_dist * 10.0).round() as i64, (s.yaw * 100.0).round() as i64, s.person.clone())
+        })
         .collect()
 }
 
@@ -58,14 +68,24 @@ async fn spoken_instructions_plan_like_typed_ones_through_the_gateway() {
     let mut total = 0.0;
     for (text, said) in SPOKEN {
         let typed = missions
-            .submit_mission(SubmitMissionRequest { robot_id: String::new(), instruction: Some(Instruction::Text(text.into())), dry_run: true })
+            .submit_mission(SubmitMissionRequest {
+                robot_id: String::new(),
+                instruction: Some(Instruction::Text(text.into())),
+                dry_run: true,
+            })
             .await
             .unwrap()
             .into_inner();
-        let Some(Outcome::Plan(expected)) = typed.outcome else { panic!("typed '{text}' did not plan: {:?}", typed.outcome) };
+        let Some(Outcome::Plan(expected)) = typed.outcome else {
+            panic!("typed '{text}' did not plan: {:?}", typed.outcome)
+        };
         let audio = Audio { format: AudioFormat::Wav as i32, sample_rate: 0, data: speak(said) };
         let spoken = missions
-            .submit_mission(SubmitMissionRequest { robot_id: String::new(), instruction: Some(Instruction::Audio(audio)), dry_run: true })
+            .submit_mission(SubmitMissionRequest {
+                robot_id: String::new(),
+                instruction: Some(Instruction::Audio(audio)),
+                dry_run: true,
+            })
             .await
             .unwrap()
             .into_inner();

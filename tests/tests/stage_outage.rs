@@ -24,7 +24,11 @@ async fn wait_running(t: &TestStack, id: &str) {
 }
 
 fn move_mission(text: &str) -> SubmitMissionRequest {
-    SubmitMissionRequest { robot_id: "husky-1".into(), instruction: Some(Instruction::Text(text.into())), dry_run: false }
+    SubmitMissionRequest {
+        robot_id: "husky-1".into(),
+        instruction: Some(Instruction::Text(text.into())),
+        dry_run: false,
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

@@ -112,10 +112,10 @@ mod tests {
 
     fn fixture() -> Vec<TrialRecord> {
         let mut rs = vec![
-            record(0, Outcome::Succeeded, (10.0, 0.0)),     // success, drift 0
-            record(1, Outcome::Succeeded, (10.0, 2.0)),     // outside radius, drift 1
-            record(2, Outcome::Failed, (7.0, 0.0)),         // failed, drift 2
-            record(3, Outcome::TimedOut, (10.5, 0.0)),      // timed out near, drift 0
+            record(0, Outcome::Succeeded, (10.0, 0.0)), // success, drift 0
+            record(1, Outcome::Succeeded, (10.0, 2.0)), // outside radius, drift 1
+            record(2, Outcome::Failed, (7.0, 0.0)),     // failed, drift 2
+            record(3, Outcome::TimedOut, (10.5, 0.0)),  // timed out near, drift 0
         ];
         rs[0].contact.soft_events = 1;
         rs[0].contact.soft_s = 4.0; // 10 % of 40 s

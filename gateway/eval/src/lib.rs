@@ -145,7 +145,8 @@ pub fn write_layouts(suite: &Suite, worlds: &[runner::LoadedWorld], dir: &Path) 
         for (ii, ins) in sc.instructions.iter().enumerate() {
             let scene = runner::layout_scene(suite, si, ii, &worlds[si].world);
             let path = dir.join(format!("layout-{}-{}.svg", sc.name, ins.id));
-            std::fs::write(&path, plot::render_svg(&scene)).with_context(|| format!("cannot write {}", path.display()))?;
+            std::fs::write(&path, plot::render_svg(&scene))
+                .with_context(|| format!("cannot write {}", path.display()))?;
             out.push(path);
         }
     }
@@ -159,7 +160,10 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
         args.frame_rate.is_finite() && args.frame_rate > 0.0,
         "--frame-rate must be a positive number of frames per second"
     );
-    anyhow::ensure!(args.stall_timeout_s.is_finite() && args.stall_timeout_s > 0.0, "--stall-timeout-s must be positive");
+    anyhow::ensure!(
+        args.stall_timeout_s.is_finite() && args.stall_timeout_s > 0.0,
+        "--stall-timeout-s must be positive"
+    );
     let suite_path = resolve_suite(&args.suite);
     let mut suite = Suite::load(&suite_path)?;
     suite.select(&args.scenarios).map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
@@ -184,7 +188,8 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
     let bar = if args.no_progress {
         indicatif::ProgressBar::hidden()
     } else {
-        let b = indicatif::ProgressBar::with_draw_target(Some(specs.len() as u64), indicatif::ProgressDrawTarget::stderr());
+        let b =
+            indicatif::ProgressBar::with_draw_target(Some(specs.len() as u64), indicatif::ProgressDrawTarget::stderr());
         b.set_style(
             indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} trials, eta {eta} {msg}")
                 .expect("a valid template")
@@ -213,7 +218,8 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
         if let Some(scene) = &result.plot {
             let r = &result.record;
             let path = args.out.join("plots").join(format!("{}-{}-{}.svg", r.scenario, r.mode, r.trial));
-            std::fs::write(&path, plot::render_svg(scene)).with_context(|| format!("cannot write {}", path.display()))?;
+            std::fs::write(&path, plot::render_svg(scene))
+                .with_context(|| format!("cannot write {}", path.display()))?;
             plots.push(path);
         }
         if result.record.outcome == metrics::Outcome::Error {
@@ -266,8 +272,16 @@ mod tests {
 
     #[test]
     fn flags_parse_into_eval_args() {
-        let cli = Cli::try_parse_from(["vlnav-eval", "--mode", "visual,hybrid", "--scenario", "lab,corridor", "--trials", "3"])
-            .unwrap();
+        let cli = Cli::try_parse_from([
+            "vlnav-eval",
+            "--mode",
+            "visual,hybrid",
+            "--scenario",
+            "lab,corridor",
+            "--trials",
+            "3",
+        ])
+        .unwrap();
         assert_eq!(cli.eval.modes, vec![Mode::Visual, Mode::Hybrid]);
         assert_eq!(cli.eval.scenarios, vec!["lab".to_string(), "corridor".to_string()]);
         assert_eq!(cli.eval.trials, Some(3));

@@ -15,13 +15,76 @@ pub struct TableVRow {
 }
 
 pub const TABLE_V: [TableVRow; 7] = [
-    TableVRow { environment: "Indoor", success_pct: 100.0, soft_collision_pct: 10.0, hard_collision_pct: 0.0, path_m: 12.4, drift_m: 0.03, drift_std_m: 0.01, simulated: true },
-    TableVRow { environment: "Garage", success_pct: 100.0, soft_collision_pct: 8.5, hard_collision_pct: 0.0, path_m: 20.8, drift_m: 0.05, drift_std_m: 0.03, simulated: true },
-    TableVRow { environment: "Campus", success_pct: 98.0, soft_collision_pct: 10.0, hard_collision_pct: 0.0, path_m: 30.5, drift_m: 0.05, drift_std_m: 0.02, simulated: true },
-    TableVRow { environment: "Forest", success_pct: 95.0, soft_collision_pct: 15.2, hard_collision_pct: 0.3, path_m: 15.5, drift_m: 0.08, drift_std_m: 0.01, simulated: true },
-    TableVRow { environment: "Tunnel", success_pct: 98.0, soft_collision_pct: 14.0, hard_collision_pct: 0.0, path_m: 25.2, drift_m: 0.05, drift_std_m: 0.02, simulated: true },
-    TableVRow { environment: "Indoor Lab", success_pct: 95.0, soft_collision_pct: 15.0, hard_collision_pct: 0.5, path_m: 12.4, drift_m: 0.10, drift_std_m: 0.02, simulated: false },
-    TableVRow { environment: "Outdoor Area", success_pct: 98.0, soft_collision_pct: 5.6, hard_collision_pct: 0.0, path_m: 124.6, drift_m: 0.05, drift_std_m: 0.01, simulated: false },
+    TableVRow {
+        environment: "Indoor",
+        success_pct: 100.0,
+        soft_collision_pct: 10.0,
+        hard_collision_pct: 0.0,
+        path_m: 12.4,
+        drift_m: 0.03,
+        drift_std_m: 0.01,
+        simulated: true,
+    },
+    TableVRow {
+        environment: "Garage",
+        success_pct: 100.0,
+        soft_collision_pct: 8.5,
+        hard_collision_pct: 0.0,
+        path_m: 20.8,
+        drift_m: 0.05,
+        drift_std_m: 0.03,
+        simulated: true,
+    },
+    TableVRow {
+        environment: "Campus",
+        success_pct: 98.0,
+        soft_collision_pct: 10.0,
+        hard_collision_pct: 0.0,
+        path_m: 30.5,
+        drift_m: 0.05,
+        drift_std_m: 0.02,
+        simulated: true,
+    },
+    TableVRow {
+        environment: "Forest",
+        success_pct: 95.0,
+        soft_collision_pct: 15.2,
+        hard_collision_pct: 0.3,
+        path_m: 15.5,
+        drift_m: 0.08,
+        drift_std_m: 0.01,
+        simulated: true,
+    },
+    TableVRow {
+        environment: "Tunnel",
+        success_pct: 98.0,
+        soft_collision_pct: 14.0,
+        hard_collision_pct: 0.0,
+        path_m: 25.2,
+        drift_m: 0.05,
+        drift_std_m: 0.02,
+        simulated: true,
+    },
+    TableVRow {
+        environment: "Indoor Lab",
+        success_pct: 95.0,
+        soft_collision_pct: 15.0,
+        hard_collision_pct: 0.5,
+        path_m: 12.4,
+        drift_m: 0.10,
+        drift_std_m: 0.02,
+        simulated: false,
+    },
+    TableVRow {
+        environment: "Outdoor Area",
+        success_pct: 98.0,
+        soft_collision_pct: 5.6,
+        hard_collision_pct: 0.0,
+        path_m: 124.6,
+        drift_m: 0.05,
+        drift_std_m: 0.01,
+        simulated: false,
+    },
 ];
 
 /// One row of the paper's Table IV: success % per navigation modality.
@@ -35,11 +98,41 @@ pub struct TableIvRow {
 }
 
 pub const TABLE_IV: [TableIvRow; 5] = [
-    TableIvRow { scenario: "Featureless Corridor", constraint: "No visual landmarks", geometric_pct: 92.0, visual_pct: 15.0, hybrid_pct: 95.0 },
-    TableIvRow { scenario: "Symmetric Room", constraint: "Geometric ambiguity", geometric_pct: 40.0, visual_pct: 94.0, hybrid_pct: 96.0 },
-    TableIvRow { scenario: "Occluded Target", constraint: "Target not visible", geometric_pct: 85.0, visual_pct: 30.0, hybrid_pct: 91.0 },
-    TableIvRow { scenario: "Precise Positioning", constraint: "Exact stopping required", geometric_pct: 96.0, visual_pct: 65.0, hybrid_pct: 98.0 },
-    TableIvRow { scenario: "Complex Mission", constraint: "Sequential task execution", geometric_pct: 10.0, visual_pct: 25.0, hybrid_pct: 88.0 },
+    TableIvRow {
+        scenario: "Featureless Corridor",
+        constraint: "No visual landmarks",
+        geometric_pct: 92.0,
+        visual_pct: 15.0,
+        hybrid_pct: 95.0,
+    },
+    TableIvRow {
+        scenario: "Symmetric Room",
+        constraint: "Geometric ambiguity",
+        geometric_pct: 40.0,
+        visual_pct: 94.0,
+        hybrid_pct: 96.0,
+    },
+    TableIvRow {
+        scenario: "Occluded Target",
+        constraint: "Target not visible",
+        geometric_pct: 85.0,
+        visual_pct: 30.0,
+        hybrid_pct: 91.0,
+    },
+    TableIvRow {
+        scenario: "Precise Positioning",
+        constraint: "Exact stopping required",
+        geometric_pct: 96.0,
+        visual_pct: 65.0,
+        hybrid_pct: 98.0,
+    },
+    TableIvRow {
+        scenario: "Complex Mission",
+        constraint: "Sequential task execution",
+        geometric_pct: 10.0,
+        visual_pct: 25.0,
+        hybrid_pct: 88.0,
+    },
 ];
 
 /// The Table V row named `environment` (exact name as printed in the paper).

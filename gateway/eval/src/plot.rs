@@ -164,7 +164,11 @@ pub fn render_svg(scene: &PlotScene) -> String {
         );
     }
     for o in &scene.obstacles {
-        let _ = writeln!(s, r##"<polygon class="obstacle" points="{}" fill="#444" stroke="#222"/>"##, points_attr(&frame, o));
+        let _ = writeln!(
+            s,
+            r##"<polygon class="obstacle" points="{}" fill="#444" stroke="#222"/>"##,
+            points_attr(&frame, o)
+        );
     }
     for c in &scene.cables {
         let _ = writeln!(
@@ -183,9 +187,18 @@ pub fn render_svg(scene: &PlotScene) -> String {
                 points_attr(&frame, &o.outline)
             );
         } else {
-            let _ = write!(s, r##"<circle class="object" cx="{x:.1}" cy="{y:.1}" r="{r:.1}" fill="#6aa84f" stroke="#38761d"/>"##);
+            let _ = write!(
+                s,
+                r##"<circle class="object" cx="{x:.1}" cy="{y:.1}" r="{r:.1}" fill="#6aa84f" stroke="#38761d"/>"##
+            );
         }
-        let _ = writeln!(s, r##"<text x="{:.1}" y="{:.1}" fill="#274e13">{}</text>"##, x + r + 2.0, y - 2.0, escape(&o.label));
+        let _ = writeln!(
+            s,
+            r##"<text x="{:.1}" y="{:.1}" fill="#274e13">{}</text>"##,
+            x + r + 2.0,
+            y - 2.0,
+            escape(&o.label)
+        );
     }
 
     // Success circle around the destination.
@@ -212,7 +225,10 @@ pub fn render_svg(scene: &PlotScene) -> String {
     }
     for p in &scene.target_estimates {
         let (x, y) = frame.px(*p);
-        let _ = writeln!(s, r##"<circle class="target-estimate" cx="{x:.1}" cy="{y:.1}" r="3" fill="#f1c232" stroke="#7f6000" stroke-width="0.5"/>"##);
+        let _ = writeln!(
+            s,
+            r##"<circle class="target-estimate" cx="{x:.1}" cy="{y:.1}" r="3" fill="#f1c232" stroke="#7f6000" stroke-width="0.5"/>"##
+        );
     }
     for (i, p) in scene.subgoals.iter().enumerate() {
         let (x, y) = frame.px(*p);
@@ -247,13 +263,19 @@ pub fn render_svg(scene: &PlotScene) -> String {
     ly -= 16.0;
     let items: [(&str, &str); 8] = [
         (r##"<line x1="0" y1="0" x2="24" y2="0" stroke="#1155cc" stroke-width="2.5"/>"##, "true path"),
-        (r##"<line x1="0" y1="0" x2="24" y2="0" stroke="#e69138" stroke-width="2" stroke-dasharray="6 4"/>"##, "odometry path"),
+        (
+            r##"<line x1="0" y1="0" x2="24" y2="0" stroke="#e69138" stroke-width="2" stroke-dasharray="6 4"/>"##,
+            "odometry path",
+        ),
         (r##"<rect x="7" y="-4.5" width="9" height="9" fill="#cc0000"/>"##, "subgoal reached"),
         (r##"<circle cx="12" cy="0" r="3" fill="#f1c232" stroke="#7f6000"/>"##, "target estimate"),
         (r##"<rect x="0" y="-6" width="24" height="12" fill="#444"/>"##, "structure"),
         (r##"<rect x="0" y="-6" width="24" height="12" fill="#cc0000" fill-opacity="0.35"/>"##, "no-go zone"),
         (r##"<circle cx="12" cy="0" r="6" fill="#6aa84f"/>"##, "object"),
-        (r##"<circle cx="12" cy="0" r="6" fill="#ffd966" stroke="#bf9000" stroke-dasharray="4 3"/>"##, "success radius"),
+        (
+            r##"<circle cx="12" cy="0" r="6" fill="#ffd966" stroke="#bf9000" stroke-dasharray="4 3"/>"##,
+            "success radius",
+        ),
     ];
     for (i, (glyph, label)) in items.iter().enumerate() {
         let col = (i % 4) as f64;
@@ -290,7 +312,12 @@ mod tests {
                     at: Point2::new(6.0, 2.0),
                     radius: 0.5,
                     label: "bench".into(),
-                    outline: vec![Point2::new(5.5, 1.8), Point2::new(6.5, 1.8), Point2::new(6.5, 2.2), Point2::new(5.5, 2.2)],
+                    outline: vec![
+                        Point2::new(5.5, 1.8),
+                        Point2::new(6.5, 1.8),
+                        Point2::new(6.5, 2.2),
+                        Point2::new(5.5, 2.2),
+                    ],
                 },
             ],
             start: Pose::new(0.0, 0.0, 0.0),
@@ -308,7 +335,9 @@ mod tests {
         let svg = render_svg(&scene());
         assert!(svg.starts_with("<svg"));
         assert!(svg.trim_end().ends_with("</svg>"));
-        for class in ["zone", "obstacle", "cable", "object", "destination", "odom-path", "true-path", "subgoal", "start"] {
+        for class in
+            ["zone", "obstacle", "cable", "object", "destination", "odom-path", "true-path", "subgoal", "start"]
+        {
             assert!(svg.contains(&format!("class=\"{class}\"")), "missing {class}");
         }
         assert_eq!(svg.matches("class=\"target-estimate\"").count(), 2);

@@ -151,10 +151,16 @@ pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String
 pub fn markdown(scenarios: &[ScenarioRef], summaries: &[Summary], master_seed: u64, trials: u32) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "# vlnav evaluation\n");
-    let _ = writeln!(out, "Master seed {master_seed}, {trials} trials per scenario and mode. Cells read \"ours (paper)\".\n");
+    let _ = writeln!(
+        out,
+        "Master seed {master_seed}, {trials} trials per scenario and mode. Cells read \"ours (paper)\".\n"
+    );
     let v = table_v_markdown(scenarios, summaries);
     if v.lines().count() > 2 {
-        let _ = writeln!(out, "## Table V — success, collisions, path and drift per environment (hybrid instructions)\n\n{v}");
+        let _ = writeln!(
+            out,
+            "## Table V — success, collisions, path and drift per environment (hybrid instructions)\n\n{v}"
+        );
     }
     let iv = table_iv_markdown(scenarios, summaries);
     if iv.lines().count() > 2 {

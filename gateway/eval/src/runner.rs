@@ -71,10 +71,7 @@ pub fn with_start(text: &str, start: Pose) -> anyhow::Result<String> {
         .get_mut("robot")
         .and_then(|r| r.as_table_mut())
         .ok_or_else(|| anyhow::anyhow!("world file has no [robot] table"))?;
-    robot.insert(
-        "start".into(),
-        toml::Value::Array(vec![start.x.into(), start.y.into(), start.theta.into()]),
-    );
+    robot.insert("start".into(), toml::Value::Array(vec![start.x.into(), start.y.into(), start.theta.into()]));
     Ok(toml::to_string(&doc)?)
 }
 
@@ -509,7 +506,8 @@ async fn run_mission(
     }
     // The frame that finished the mission is the agent's once its answer
     // arrives: wait for it, so no run loses its last frame to the shutdown.
-    if finished_stamp.is_finite() && !agent_done && after_submit.last().is_none_or(|s| s.stamp < finished_stamp - 1e-9) {
+    if finished_stamp.is_finite() && !agent_done && after_submit.last().is_none_or(|s| s.stamp < finished_stamp - 1e-9)
+    {
         let deadline = tokio::time::Instant::now() + stall;
         loop {
             match tokio::time::timeout_at(deadline, rx.recv()).await {
@@ -606,7 +604,8 @@ color = [220, 30, 30]
 
     #[test]
     fn target_estimates_map_through_the_origin_in_force() {
-        let mk = |stamp: f64, ox: f64| TruthSample { stamp, odom_origin: Pose::new(ox, 0.0, 0.0), ..Default::default() };
+        let mk =
+            |stamp: f64, ox: f64| TruthSample { stamp, odom_origin: Pose::new(ox, 0.0, 0.0), ..Default::default() };
         let track = [mk(0.0, 0.0), mk(1.0, 5.0), mk(2.0, 7.0)];
         assert_eq!(origin_at(&track, 1.5).unwrap().x, 5.0);
         assert_eq!(origin_at(&track, 1.0).unwrap().x, 5.0);

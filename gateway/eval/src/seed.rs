@@ -94,8 +94,7 @@ mod tests {
 
     #[test]
     fn seeds_of_consecutive_trials_are_spread() {
-        let seeds: std::collections::BTreeSet<u64> =
-            (0..1000).map(|t| trial_seed(1, "forest", "hybrid", t)).collect();
+        let seeds: std::collections::BTreeSet<u64> = (0..1000).map(|t| trial_seed(1, "forest", "hybrid", t)).collect();
         assert_eq!(seeds.len(), 1000);
     }
 

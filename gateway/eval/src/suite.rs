@@ -278,7 +278,13 @@ pub fn visual_text(route: &[Leg]) -> String {
 
 fn metres(d: f64) -> String {
     let r = (d * 10.0).round() / 10.0;
-    if (r - 1.0).abs() < 1e-9 { "1 meter".into() } else if r.fract() == 0.0 { format!("{r:.0} meters") } else { format!("{r:.1} meters") }
+    if (r - 1.0).abs() < 1e-9 {
+        "1 meter".into()
+    } else if r.fract() == 0.0 {
+        format!("{r:.0} meters")
+    } else {
+        format!("{r:.1} meters")
+    }
 }
 
 fn capitalise(s: &str) -> String {
@@ -337,7 +343,9 @@ impl Suite {
             if !names.insert(s.name.as_str()) {
                 return Err(invalid(at("name"), "is used by another scenario"));
             }
-            for (field, v) in [("start_noise_xy_m", s.start_noise_xy_m), ("start_noise_theta_deg", s.start_noise_theta_deg)] {
+            for (field, v) in
+                [("start_noise_xy_m", s.start_noise_xy_m), ("start_noise_theta_deg", s.start_noise_theta_deg)]
+            {
                 if let Some(v) = v
                     && !(v.is_finite() && v >= 0.0)
                 {
@@ -371,7 +379,7 @@ impl Suite {
                 if !(ins.radius.is_finite() && ins.radius > 0.0) {
                     return Err(invalid(at("radius"), "must be a positive distance in metres"));
                 }
-                    if ins.route.iter().any(|l| !l.at.iter().all(|v| v.is_finite())) {
+                if ins.route.iter().any(|l| !l.at.iter().all(|v| v.is_finite())) {
                     return Err(invalid(at("route.at"), "every waypoint must be two finite numbers [x_m, y_m]"));
                 }
                 if ins.route.iter().any(|l| l.d_s.is_some_and(|d| !(d.is_finite() && (0.0..=5.0).contains(&d)))) {
@@ -540,9 +548,15 @@ route = [{ at = [10.0, 0.0] }, { at = [12.0, 3.0], find = "chair" }]
 
     #[test]
     fn geometric_turns_are_relative_to_the_current_heading() {
-        let route = [Leg { at: [0.0, 5.0], find: None, d_s: None, size: 0.0 }, Leg { at: [3.0, 5.0], find: None, d_s: None, size: 0.0 }];
+        let route = [
+            Leg { at: [0.0, 5.0], find: None, d_s: None, size: 0.0 },
+            Leg { at: [3.0, 5.0], find: None, d_s: None, size: 0.0 },
+        ];
         let text = geometric_text(Pose::new(0.0, 0.0, 0.0), &route);
-        assert_eq!(text, "Turn left 90 degrees and move 5.0 meters forward, then turn right 90 degrees and move 3.0 meters forward");
+        assert_eq!(
+            text,
+            "Turn left 90 degrees and move 5.0 meters forward, then turn right 90 degrees and move 3.0 meters forward"
+        );
         // Facing +y already: no turn first.
         let text = geometric_text(Pose::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), &route[..1]);
         assert_eq!(text, "Move 5.0 meters forward");

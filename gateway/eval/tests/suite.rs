@@ -48,11 +48,14 @@ fn every_instruction_plans_and_names_landmarks_of_its_world() {
             let text = ins.text(start);
             let plan = match htn::parse(&text, &grounder).outcome {
                 Outcome::Plan(p) => p,
-                Outcome::Clarify(c) => panic!("{} / {} ({text:?}): the planner asks {:?} ({})", sc.name, ins.id, c.question, c.reason),
+                Outcome::Clarify(c) => {
+                    panic!("{} / {} ({text:?}): the planner asks {:?} ({})", sc.name, ins.id, c.question, c.reason)
+                }
             };
             let who = format!("{} / {} ({text:?} → {})", sc.name, ins.id, plan.to_json_string());
             assert!(!plan.steps.is_empty(), "{who}: empty plan");
-            let finds: Vec<i32> = plan.steps.iter().filter(|st| st.action == Action::Find).map(|st| st.class_id).collect();
+            let finds: Vec<i32> =
+                plan.steps.iter().filter(|st| st.action == Action::Find).map(|st| st.class_id).collect();
             for class in &finds {
                 assert!(!w.find_objects(*class, None, 0.0).is_empty(), "{who}: class {class} is not in the world");
             }

@@ -55,13 +55,16 @@ impl ProfileArgs {
 
 /// Asks the gateway (`MissionService.GetMission`) for a mission's trace id.
 pub async fn mission_trace_id(gateway: &str, mission_id: &str) -> anyhow::Result<String> {
-    let channel = vlnav_runtime::client::channel(gateway).with_context(|| format!("invalid gateway address {gateway:?}"))?;
+    let channel =
+        vlnav_runtime::client::channel(gateway).with_context(|| format!("invalid gateway address {gateway:?}"))?;
     let mut client = MissionServiceClient::new(channel);
     let mission = client
         .get_mission(GetMissionRequest { mission_id: mission_id.to_string() })
         .await
         .map_err(|status| match status.code() {
-            tonic::Code::NotFound => anyhow::anyhow!("gateway {gateway} knows no mission {mission_id:?}: {}", status.message()),
+            tonic::Code::NotFound => {
+                anyhow::anyhow!("gateway {gateway} knows no mission {mission_id:?}: {}", status.message())
+            }
             tonic::Code::Unavailable => anyhow::anyhow!(
                 "cannot reach the gateway at {gateway} ({}); start it (`vlnav up`) or pass --gateway",
                 status.message()
@@ -72,7 +75,8 @@ pub async fn mission_trace_id(gateway: &str, mission_id: &str) -> anyhow::Result
     if mission.trace_id.trim().is_empty() {
         anyhow::bail!("mission {mission_id} has no trace id (the gateway recorded none for it)");
     }
-    normalize_trace_id(&mission.trace_id).with_context(|| format!("gateway returned a bad trace id for mission {mission_id}"))
+    normalize_trace_id(&mission.trace_id)
+        .with_context(|| format!("gateway returned a bad trace id for mission {mission_id}"))
 }
 
 /// Reads every span of `trace_id` from `source`.

@@ -206,7 +206,8 @@ pub async fn fetch_trace(base_url: &str, trace_id: &str) -> Result<Vec<Span>, Ja
         let body: String = body.chars().take(300).collect();
         return Err(JaegerError::Http { url, status, body });
     }
-    let spans = spans_from_jaeger_json(&body).map_err(|reason| JaegerError::BadResponse { url: url.clone(), reason })?;
+    let spans =
+        spans_from_jaeger_json(&body).map_err(|reason| JaegerError::BadResponse { url: url.clone(), reason })?;
     if spans.is_empty() {
         return Err(JaegerError::NotFound { trace_id, url });
     }

@@ -126,7 +126,12 @@ mod tests {
         KeyValue { key: key.into(), value: Some(AnyValue { value: Some(value) }), ..Default::default() }
     }
 
-    fn otlp_span(name: &str, trace: Vec<u8>, id: Vec<u8>, parent: Vec<u8>) -> opentelemetry_proto::tonic::trace::v1::Span {
+    fn otlp_span(
+        name: &str,
+        trace: Vec<u8>,
+        id: Vec<u8>,
+        parent: Vec<u8>,
+    ) -> opentelemetry_proto::tonic::trace::v1::Span {
         opentelemetry_proto::tonic::trace::v1::Span {
             trace_id: trace,
             span_id: id,
@@ -157,7 +162,12 @@ mod tests {
                     }),
                     scope_spans: vec![ScopeSpans {
                         spans: vec![
-                            otlp_span("detect", trace.clone(), vec![0, 0, 0, 0, 0, 0, 0, 2], vec![0, 0, 0, 0, 0, 0, 0, 1]),
+                            otlp_span(
+                                "detect",
+                                trace.clone(),
+                                vec![0, 0, 0, 0, 0, 0, 0, 2],
+                                vec![0, 0, 0, 0, 0, 0, 0, 1],
+                            ),
                             otlp_span("bad", vec![0; 16], vec![1; 8], vec![]),
                             otlp_span("bad-id", trace.clone(), vec![1; 4], vec![]),
                         ],

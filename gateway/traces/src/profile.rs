@@ -280,7 +280,11 @@ pub fn control_loop(spans: &[Span], cycle_name: &str) -> Option<ControlLoopProfi
         .collect();
     shares.sort_by(|a, b| b.share.total_cmp(&a.share).then_with(|| a.stage.cmp(&b.stage)));
     let cycle_key = StageKey::of(cycles[0]);
-    let cycle = summarize(cycle_key, cycles.iter().map(|c| ms(c.duration_ns())).collect(), cycles.iter().filter(|c| c.is_error()).count());
+    let cycle = summarize(
+        cycle_key,
+        cycles.iter().map(|c| ms(c.duration_ns())).collect(),
+        cycles.iter().filter(|c| c.is_error()).count(),
+    );
     Some(ControlLoopProfile { cycle_name: cycle_name.to_string(), cycles: n, cycle, shares, breakdowns })
 }
 
@@ -545,7 +549,8 @@ mod tests {
         ];
         let tree = SpanTree::new(&spans);
         let path = tree.critical_path(&spans[0]);
-        let got: Vec<(&str, u64, u64)> = path.iter().map(|p| (p.stage.name.as_str(), p.start_ns / MS, p.end_ns / MS)).collect();
+        let got: Vec<(&str, u64, u64)> =
+            path.iter().map(|p| (p.stage.name.as_str(), p.start_ns / MS, p.end_ns / MS)).collect();
         assert_eq!(got, [("control-cycle", 0, 10), ("detect", 10, 20)]);
     }
 

@@ -78,7 +78,8 @@ impl SpanStore {
             let path = Self::trace_file(&self.dir, &trace_id)?;
             let mut buf = Vec::with_capacity(spans.len() * 256);
             for span in &spans {
-                serde_json::to_writer(&mut buf, span).map_err(|e| StoreError::Io { path: path.clone(), source: e.into() })?;
+                serde_json::to_writer(&mut buf, span)
+                    .map_err(|e| StoreError::Io { path: path.clone(), source: e.into() })?;
                 buf.push(b'\n');
             }
             let mut file = OpenOptions::new().create(true).append(true).open(&path).map_err(io_at(&path))?;

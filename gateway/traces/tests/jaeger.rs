@@ -41,7 +41,11 @@ async fn jaeger_server() -> (String, Arc<Mutex<Vec<String>>>) {
             let (status, payload) = if line.starts_with(&format!("GET /api/traces/{TRACE} ")) {
                 ("200 OK", body.clone())
             } else if line.starts_with("GET /api/traces/") {
-                ("404 Not Found", r#"{"data":null,"total":0,"limit":0,"offset":0,"errors":[{"code":404,"msg":"trace not found"}]}"#.to_string())
+                (
+                    "404 Not Found",
+                    r#"{"data":null,"total":0,"limit":0,"offset":0,"errors":[{"code":404,"msg":"trace not found"}]}"#
+                        .to_string(),
+                )
             } else {
                 ("500 Internal Server Error", "boom".to_string())
             };
@@ -76,7 +80,11 @@ fn jaeger_json_becomes_spans() {
     let lp = spans.iter().find(|s| s.name == "local-plan").unwrap();
     assert_eq!(lp.attributes["best_cost"], AttrValue::Float(0.4375));
     assert_eq!(lp.status, SpanStatus::Unset);
-    assert!(spans_from_jaeger_json(r#"{"data":null,"errors":[{"code":404,"msg":"trace not found"}]}"#).unwrap_err().contains("trace not found"));
+    assert!(
+        spans_from_jaeger_json(r#"{"data":null,"errors":[{"code":404,"msg":"trace not found"}]}"#)
+            .unwrap_err()
+            .contains("trace not found")
+    );
     assert!(spans_from_jaeger_json("<html>").is_err());
 }
 

@@ -96,13 +96,17 @@ async fn sdk_exports_land_in_the_store_and_profile() {
 
     let report = profile_trace(&SpanSource::Dir(dir.path().to_path_buf()), &trace_id, "control-cycle").await.unwrap();
     assert!(report.contains(&format!("trace {trace_id} · 7 spans · 2 services")), "{report}");
-    let detect_row = report.lines().find(|l| l.trim_start().starts_with("detect ")).unwrap_or_else(|| panic!("{report}"));
+    let detect_row =
+        report.lines().find(|l| l.trim_start().starts_with("detect ")).unwrap_or_else(|| panic!("{report}"));
     let cols: Vec<&str> = detect_row.split_whitespace().collect();
     // stage service kind count err p50 p95 p99 max total
     assert_eq!(cols[..9], ["detect", "vlnav-detector", "server", "3", "1", "60.0", "90.0", "90.0", "90.0"], "{report}");
     assert!(report.contains("3 `control-cycle` cycles: p50 100 ms"), "{report}");
     // The detector dominates every cycle: 60 + 60 + 90 of 300 ms.
-    let path_row = report.lines().find(|l| l.trim_start().starts_with("detect [vlnav-detector, server]")).unwrap_or_else(|| panic!("{report}"));
+    let path_row = report
+        .lines()
+        .find(|l| l.trim_start().starts_with("detect [vlnav-detector, server]"))
+        .unwrap_or_else(|| panic!("{report}"));
     assert!(path_row.contains("70.0%"), "{path_row}");
     assert!(path_row.trim_end().ends_with('3'), "dominant in all 3 cycles: {path_row}");
 

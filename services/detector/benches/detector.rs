@@ -28,11 +28,18 @@ async fn start(opts: Options) -> Connected<DetectorServiceClient<tonic::transpor
 
 /// A 640×480 camera frame (the D455's colour resolution) as raw RGB8, cut from bike.jpg.
 fn camera_frame() -> v1::RgbdFrame {
-    let photo = image::open(models_dir().join("photos/bike.jpg")).expect("photos/bike.jpg: run deploy/fetch-models.sh").into_rgb8();
+    let photo = image::open(models_dir().join("photos/bike.jpg"))
+        .expect("photos/bike.jpg: run deploy/fetch-models.sh")
+        .into_rgb8();
     let frame = image::imageops::crop_imm(&photo, 80, 38, 640, 480).to_image();
     v1::RgbdFrame {
         seq: 1,
-        rgb: Some(v1::Image { width: 640, height: 480, encoding: v1::ImageEncoding::Rgb8 as i32, data: frame.into_raw() }),
+        rgb: Some(v1::Image {
+            width: 640,
+            height: 480,
+            encoding: v1::ImageEncoding::Rgb8 as i32,
+            data: frame.into_raw(),
+        }),
         ..Default::default()
     }
 }
@@ -49,7 +56,9 @@ fn label_frame() -> v1::RgbdFrame {
             depth.extend_from_slice(&(1000 + (x as u16) * 5).to_le_bytes());
         }
     }
-    let instances = (1..=12).map(|i| v1::LabelInstance { instance_id: i, class_id: (i % 3) as i32, ..Default::default() }).collect();
+    let instances = (1..=12)
+        .map(|i| v1::LabelInstance { instance_id: i, class_id: (i % 3) as i32, ..Default::default() })
+        .collect();
     v1::RgbdFrame {
         seq: 1,
         depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth }),
@@ -68,7 +77,11 @@ fn service_latency(c: &mut Criterion) {
     vlnav_detector::yolov8::YoloV8::write_random_weights(&yolo, vlnav_detector::yolov8::Size::N, 80).unwrap();
     let cases = [
         ("nanodet_416", Options { models_dir: models_dir(), ..Default::default() }, camera_frame()),
-        ("yolov8n_640", Options { backend: BackendKind::Yolov8, yolo_weights: Some(yolo), ..Default::default() }, camera_frame()),
+        (
+            "yolov8n_640",
+            Options { backend: BackendKind::Yolov8, yolo_weights: Some(yolo), ..Default::default() },
+            camera_frame(),
+        ),
         ("sim_640x480", Options { backend: BackendKind::Sim, ..Default::default() }, label_frame()),
     ];
     for (name, opts, frame) in cases {
@@ -108,7 +121,13 @@ fn decode_and_nms(c: &mut Criterion) {
         .collect();
     let heads: Vec<HeadLevel<'_>> = levels
         .iter()
-        .map(|(side, stride, s, l)| HeadLevel { stride: *stride, width: *side, height: *side, scores: s, box_logits: l })
+        .map(|(side, stride, s, l)| HeadLevel {
+            stride: *stride,
+            width: *side,
+            height: *side,
+            scores: s,
+            box_logits: l,
+        })
         .collect();
     let spec = HeadSpec { num_classes: 80, bins: 11 };
     let filter = DetectFilter { class_ids: vec![], min_score: 0.4 };

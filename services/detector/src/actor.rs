@@ -128,7 +128,9 @@ impl Backend {
                 .iter()
                 .map(|j| match &j.input {
                     Input::Labels(f) => Ok(sim::detect(f, cfg, &j.filter)),
-                    Input::Rgb(_) => Err(DetectError::InvalidArgument("the simulation backend needs frame.labels".into())),
+                    Input::Rgb(_) => {
+                        Err(DetectError::InvalidArgument("the simulation backend needs frame.labels".into()))
+                    }
                 })
                 .collect(),
             Backend::NanoDet { model, nms_iou, .. } => {

@@ -142,7 +142,11 @@ fn expected_bin(logits: &[f32]) -> f32 {
 /// Decodes dense head outputs into boxes in network-input pixels: for each
 /// point the best class (if it passes `filter`) and the box from the four
 /// side distributions, each the softmax expectation times the stride.
-pub fn decode_dense(levels: &[HeadLevel<'_>], spec: HeadSpec, filter: &DetectFilter) -> Result<Vec<Detection>, DecodeError> {
+pub fn decode_dense(
+    levels: &[HeadLevel<'_>],
+    spec: HeadSpec,
+    filter: &DetectFilter,
+) -> Result<Vec<Detection>, DecodeError> {
     let mut out = Vec::new();
     let nc = spec.num_classes;
     let nb = 4 * spec.bins;

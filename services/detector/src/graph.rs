@@ -111,7 +111,12 @@ enum Op {
     Input(usize),
     Identity,
     /// `bias` is set when the following Add of a per-channel constant was fused in.
-    Conv2d { filter: Tensor, bias: Option<Tensor>, stride: usize, dilation: usize },
+    Conv2d {
+        filter: Tensor,
+        bias: Option<Tensor>,
+        stride: usize,
+        dilation: usize,
+    },
     Add,
     LeakyRelu(f64),
     Pad,
@@ -122,7 +127,10 @@ enum Op {
     SplitV,
     Sigmoid,
     Reshape,
-    MaxPool { k: usize, stride: usize },
+    MaxPool {
+        k: usize,
+        stride: usize,
+    },
     SparseToDense,
 }
 
@@ -170,7 +178,10 @@ fn check_nhwc_valid(node: &NodeDef) -> Result<(), GraphError> {
     }
     match node.attrs.get("padding") {
         Some(Attr::Str(p)) if p == "VALID" => Ok(()),
-        other => Err(node_err(node, format!("padding {other:?} is not supported (VALID only; explicit Pad ops carry the padding)"))),
+        other => Err(node_err(
+            node,
+            format!("padding {other:?} is not supported (VALID only; explicit Pad ops carry the padding)"),
+        )),
     }
 }
 
@@ -351,11 +362,7 @@ impl Graph {
         let batch = inputs.first().map(|t| t.dims().first().copied().unwrap_or(1)).unwrap_or(1);
         let mut values: Vec<Option<Value>> = vec![None; self.names.len()];
         for (si, step) in self.steps.iter().enumerate() {
-            let args: Vec<Value> = step
-                .inputs
-                .iter()
-                .map(|s| self.fetch(&values, *s))
-                .collect::<Result<_, _>>()?;
+            let args: Vec<Value> = step.inputs.iter().map(|s| self.fetch(&values, *s)).collect::<Result<_, _>>()?;
             let out = self.eval(step, &args, inputs, batch).map_err(|e| match e {
                 GraphError::Candle(c) => GraphError::Node {
                     node: self.names[step.node].clone(),
@@ -640,7 +647,10 @@ mod tests {
     }
 
     fn int_const(name: &str, shape: &[usize], values: &[i64]) -> NodeDef {
-        NodeDef { int_value: Some(IntConst { shape: shape.to_vec(), values: values.to_vec() }), ..node(name, "Const", &[]) }
+        NodeDef {
+            int_value: Some(IntConst { shape: shape.to_vec(), values: values.to_vec() }),
+            ..node(name, "Const", &[])
+        }
     }
 
     /// x (NCHW 1×1×3×3) → pad 1 → NHWC → conv 3×3 (sum filter) + bias → NCHW → leaky relu.

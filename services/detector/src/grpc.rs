@@ -67,7 +67,11 @@ impl DetectorGrpc {
 }
 
 /// The caller's class and score wishes.
-pub fn filter_from_request(class_ids: &[i32], min_score: f32, default_min_score: f32) -> Result<DetectFilter, ServiceError> {
+pub fn filter_from_request(
+    class_ids: &[i32],
+    min_score: f32,
+    default_min_score: f32,
+) -> Result<DetectFilter, ServiceError> {
     for (i, &c) in class_ids.iter().enumerate() {
         if vlnav_proto::coco::name(c).is_none() {
             return Err(invalid("class_ids", format!("class_ids[{i}] = {c} is not a COCO-80 class id (0–79)")));
@@ -111,7 +115,8 @@ pub fn labels_input(frame: &v1::RgbdFrame) -> Result<Input, ServiceError> {
         }
         _ => Vec::new(),
     };
-    let instances = labels.instances.iter().map(|i| Instance { instance_id: i.instance_id, class_id: i.class_id }).collect();
+    let instances =
+        labels.instances.iter().map(|i| Instance { instance_id: i.instance_id, class_id: i.class_id }).collect();
     Ok(Input::Labels(LabeledFrame { seq: frame.seq, width, height, instance_ids, instances, depth_mm }))
 }
 

@@ -61,7 +61,12 @@ pub struct Options {
     #[arg(id = "detector_backend", long = "detector-backend", env = "VLNAV_DETECTOR_BACKEND", value_enum, default_value_t = BackendKind::Nanodet)]
     pub backend: BackendKind,
     /// Model directory (NanoDet in `nanodet/`, YOLOv8 in `yolov8/`).
-    #[arg(id = "detector_models_dir", long = "detector-models-dir", env = "VLNAV_MODELS_DIR", default_value = "models")]
+    #[arg(
+        id = "detector_models_dir",
+        long = "detector-models-dir",
+        env = "VLNAV_MODELS_DIR",
+        default_value = "models"
+    )]
     pub models_dir: PathBuf,
     /// NanoDet weights (default `<models-dir>/nanodet/nanodet.safetensors`; the graph
     /// `<stem>.graph.json` sits next to it).
@@ -74,28 +79,58 @@ pub struct Options {
     #[arg(id = "detector_yolo_size", long = "detector-yolo-size", env = "VLNAV_DETECTOR_YOLO_SIZE", value_enum, default_value_t = yolov8::Size::N)]
     pub yolo_size: yolov8::Size,
     /// Confidence used when a request leaves min_score at 0 (the authors use 0.4).
-    #[arg(id = "detector_min_score", long = "detector-min-score", env = "VLNAV_DETECTOR_MIN_SCORE", default_value_t = 0.4)]
+    #[arg(
+        id = "detector_min_score",
+        long = "detector-min-score",
+        env = "VLNAV_DETECTOR_MIN_SCORE",
+        default_value_t = 0.4
+    )]
     pub min_score: f32,
     /// Non-maximum suppression IoU threshold (per class).
     #[arg(id = "detector_nms_iou", long = "detector-nms-iou", env = "VLNAV_DETECTOR_NMS_IOU", default_value_t = 0.45)]
     pub nms_iou: f32,
     /// Most requests run through the network together.
-    #[arg(id = "detector_max_batch", long = "detector-max-batch", env = "VLNAV_DETECTOR_MAX_BATCH", default_value_t = 8)]
+    #[arg(
+        id = "detector_max_batch",
+        long = "detector-max-batch",
+        env = "VLNAV_DETECTOR_MAX_BATCH",
+        default_value_t = 8
+    )]
     pub max_batch: usize,
     /// Where the neural backends run (cuda needs the `cuda` cargo feature).
     #[arg(id = "detector_device", long = "detector-device", env = "VLNAV_DETECTOR_DEVICE", value_enum, default_value_t = DeviceKind::Cpu)]
     pub device: DeviceKind,
     /// Simulation: fewest visible pixels for a detection.
-    #[arg(id = "detector_sim_min_pixels", long = "detector-sim-min-pixels", env = "VLNAV_DETECTOR_SIM_MIN_PIXELS", default_value_t = 50)]
+    #[arg(
+        id = "detector_sim_min_pixels",
+        long = "detector-sim-min-pixels",
+        env = "VLNAV_DETECTOR_SIM_MIN_PIXELS",
+        default_value_t = 50
+    )]
     pub sim_min_pixels: usize,
     /// Simulation: farthest detection by median depth, metres.
-    #[arg(id = "detector_sim_max_range_m", long = "detector-sim-max-range-m", env = "VLNAV_DETECTOR_SIM_MAX_RANGE_M", default_value_t = 10.0)]
+    #[arg(
+        id = "detector_sim_max_range_m",
+        long = "detector-sim-max-range-m",
+        env = "VLNAV_DETECTOR_SIM_MAX_RANGE_M",
+        default_value_t = 10.0
+    )]
     pub sim_max_range_m: f32,
     /// Simulation: probability of missing a visible instance in a frame.
-    #[arg(id = "detector_sim_miss_rate", long = "detector-sim-miss-rate", env = "VLNAV_DETECTOR_SIM_MISS_RATE", default_value_t = 0.0)]
+    #[arg(
+        id = "detector_sim_miss_rate",
+        long = "detector-sim-miss-rate",
+        env = "VLNAV_DETECTOR_SIM_MISS_RATE",
+        default_value_t = 0.0
+    )]
     pub sim_miss_rate: f32,
     /// Simulation: box edges move by up to ± this many pixels.
-    #[arg(id = "detector_sim_jitter_px", long = "detector-sim-jitter-px", env = "VLNAV_DETECTOR_SIM_JITTER_PX", default_value_t = 0.0)]
+    #[arg(
+        id = "detector_sim_jitter_px",
+        long = "detector-sim-jitter-px",
+        env = "VLNAV_DETECTOR_SIM_JITTER_PX",
+        default_value_t = 0.0
+    )]
     pub sim_jitter_px: f32,
     /// Simulation: seed of misses and jitter (with frame seq and instance id).
     #[arg(id = "detector_sim_seed", long = "detector-sim-seed", env = "VLNAV_DETECTOR_SIM_SEED", default_value_t = 0)]
@@ -149,11 +184,22 @@ impl Options {
     }
 
     fn validate(&self) -> anyhow::Result<()> {
-        anyhow::ensure!((0.0..=1.0).contains(&self.min_score), "--detector-min-score must be in [0, 1], got {}", self.min_score);
-        anyhow::ensure!((0.0..=1.0).contains(&self.nms_iou), "--detector-nms-iou must be in [0, 1], got {}", self.nms_iou);
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.min_score),
+            "--detector-min-score must be in [0, 1], got {}",
+            self.min_score
+        );
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&self.nms_iou),
+            "--detector-nms-iou must be in [0, 1], got {}",
+            self.nms_iou
+        );
         anyhow::ensure!(self.max_batch >= 1, "--detector-max-batch must be at least 1");
         anyhow::ensure!((0.0..=1.0).contains(&self.sim_miss_rate), "--detector-sim-miss-rate must be in [0, 1]");
-        anyhow::ensure!(self.sim_jitter_px >= 0.0 && self.sim_max_range_m > 0.0, "--detector-sim-jitter-px ≥ 0 and --detector-sim-max-range-m > 0");
+        anyhow::ensure!(
+            self.sim_jitter_px >= 0.0 && self.sim_max_range_m > 0.0,
+            "--detector-sim-jitter-px ≥ 0 and --detector-sim-max-range-m > 0"
+        );
         Ok(())
     }
 }
@@ -164,7 +210,9 @@ pub fn device(kind: DeviceKind) -> anyhow::Result<candle_core::Device> {
         DeviceKind::Cpu => Ok(candle_core::Device::Cpu),
         DeviceKind::Cuda => {
             if !candle_core::utils::cuda_is_available() {
-                anyhow::bail!("--detector-device cuda: this build has no CUDA support (build with `--features cuda`) or no GPU is visible");
+                anyhow::bail!(
+                    "--detector-device cuda: this build has no CUDA support (build with `--features cuda`) or no GPU is visible"
+                );
             }
             Ok(candle_core::Device::new_cuda(0)?)
         }
@@ -173,7 +221,10 @@ pub fn device(kind: DeviceKind) -> anyhow::Result<candle_core::Device> {
 
 /// Loads the configured backend (failing with the missing file and how to get
 /// it), spawns the actor and returns the DetectorService.
-pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+pub async fn services(
+    opts: &Options,
+    server: &vlnav_runtime::ServerConfig,
+) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     opts.validate()?;
     let opts_for_load = opts.clone();
     let backend = tokio::task::spawn_blocking(move || actor::Backend::load(&opts_for_load)).await??;
@@ -200,7 +251,15 @@ mod tests {
 
     #[test]
     fn flags_have_detector_prefixed_names_and_sane_defaults() {
-        let o = parse(&["vlnav-detector", "--detector-backend", "sim", "--detector-sim-seed", "7", "--detector-yolo-size", "m"]);
+        let o = parse(&[
+            "vlnav-detector",
+            "--detector-backend",
+            "sim",
+            "--detector-sim-seed",
+            "7",
+            "--detector-yolo-size",
+            "m",
+        ]);
         assert_eq!((o.backend, o.sim_seed, o.yolo_size), (BackendKind::Sim, 7, yolov8::Size::M));
         assert_eq!(o.nms_iou, 0.45);
         assert_eq!(o.yolo_weights_path(), o.models_dir.join("yolov8/yolov8m.safetensors"));

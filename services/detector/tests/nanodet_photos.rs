@@ -62,7 +62,12 @@ async fn cyclists_astronaut_cup_and_cat() {
     let best = boxes.iter().max_by(|a, b| a.score.total_cmp(&b.score)).expect("a detection");
     assert_eq!(best.class_id, PERSON, "{boxes:#?}");
     assert!(best.score >= 0.5 && inside(best, 512.0, 512.0));
-    assert!(best.x_min < 256.0 && best.x_max > 256.0 && (best.x_max - best.x_min) * (best.y_max - best.y_min) > 0.25 * 512.0 * 512.0, "{best:?}");
+    assert!(
+        best.x_min < 256.0
+            && best.x_max > 256.0
+            && (best.x_max - best.x_min) * (best.y_max - best.y_min) > 0.25 * 512.0 * 512.0,
+        "{best:?}"
+    );
 
     // coffee.png (600×400): a cup, weak for this model with letterboxing (≈0.27).
     let boxes = detect(&mut svc, "coffee.png", vec![], 0.2).await;
@@ -127,8 +132,10 @@ async fn motorcycle_depth_from_the_stereo_ground_truth() {
     assert_eq!(shape, vec![500, 741]);
     let (h, w) = (shape[0], shape[1]);
     // Ground-truth depth, metres (NaN/inf disparity: no ground truth).
-    let depth_m: Vec<f32> =
-        disparity.iter().map(|&d| if d.is_finite() && d > 0.0 { FOCAL_PX * BASELINE_M / (d + DOFFS_PX) } else { 0.0 }).collect();
+    let depth_m: Vec<f32> = disparity
+        .iter()
+        .map(|&d| if d.is_finite() && d > 0.0 { FOCAL_PX * BASELINE_M / (d + DOFFS_PX) } else { 0.0 })
+        .collect();
     // The frame a D455 would deliver: u16 millimetres, 0 = no return.
     let depth_mm: Vec<u8> =
         depth_m.iter().flat_map(|&z| ((z * 1000.0).round().clamp(0.0, 65535.0) as u16).to_le_bytes()).collect();
@@ -147,7 +154,10 @@ async fn motorcycle_depth_from_the_stereo_ground_truth() {
         let ih = (moto.y_max.min(truth_box.3) - moto.y_min.max(truth_box.1)).max(0.0);
         let inter = iw * ih;
         let area = |x0: f32, y0: f32, x1: f32, y1: f32| (x1 - x0) * (y1 - y0);
-        inter / (area(moto.x_min, moto.y_min, moto.x_max, moto.y_max) + area(truth_box.0, truth_box.1, truth_box.2, truth_box.3) - inter)
+        inter
+            / (area(moto.x_min, moto.y_min, moto.x_max, moto.y_max)
+                + area(truth_box.0, truth_box.1, truth_box.2, truth_box.3)
+                - inter)
     };
     assert!(iou > 0.6, "box {moto:?}, IoU with the hand-checked extent {iou}");
 
@@ -181,7 +191,8 @@ async fn motorcycle_depth_from_the_stereo_ground_truth() {
     assert!(rel < 0.05, "median box depth {measured:.3} m vs ground truth {truth:.3} m ({:.1} %)", rel * 100.0);
     // And the estimate lies on the motorcycle: between its nearest and farthest parts
     // (headlight, front wheel, engine, seat, rear wheel; hand-marked regions of the image).
-    let parts = [(505, 120, 565, 185), (515, 290, 680, 445), (330, 240, 470, 350), (150, 150, 350, 230), (125, 240, 275, 400)];
+    let parts =
+        [(505, 120, 565, 185), (515, 290, 680, 445), (330, 240, 470, 350), (150, 150, 350, 230), (125, 240, 275, 400)];
     let depths: Vec<f32> = parts.into_iter().map(region).collect();
     let (near, far) = depths.iter().fold((f32::MAX, 0.0f32), |(a, b), &d| (a.min(d), b.max(d)));
     assert!((near..=far).contains(&measured), "{measured:.3} m outside the motorcycle's {near:.3}–{far:.3} m");
@@ -200,13 +211,19 @@ fn a_batched_forward_equals_single_images() {
     let all = DetectFilter { class_ids: vec![], min_score: 0.3 };
     let cats = DetectFilter { class_ids: vec![CAT], min_score: 0.3 };
     let batch = model.detect(&[&a, &b], &[all.clone(), cats.clone()], 0.45).unwrap();
-    let alone = [model.detect(&[&a], &[all], 0.45).unwrap().remove(0), model.detect(&[&b], &[cats], 0.45).unwrap().remove(0)];
+    let alone =
+        [model.detect(&[&a], &[all], 0.45).unwrap().remove(0), model.detect(&[&b], &[cats], 0.45).unwrap().remove(0)];
     for (got, want) in batch.iter().zip(&alone) {
         assert!(!want.is_empty());
         assert_eq!(got.len(), want.len(), "{got:?} vs {want:?}");
         for (g, w) in got.iter().zip(want) {
             assert_eq!(g.class_id, w.class_id);
-            assert!((g.score - w.score).abs() < 1e-4 && (g.x_min - w.x_min).abs() < 0.05 && (g.y_max - w.y_max).abs() < 0.05, "{g:?} vs {w:?}");
+            assert!(
+                (g.score - w.score).abs() < 1e-4
+                    && (g.x_min - w.x_min).abs() < 0.05
+                    && (g.y_max - w.y_max).abs() < 0.05,
+                "{g:?} vs {w:?}"
+            );
         }
     }
     assert!(batch[1].iter().all(|d| d.class_id == CAT));

@@ -128,7 +128,8 @@ async fn yolov8_serves_generated_weights() {
     let dir = tempfile::tempdir().unwrap();
     let weights = dir.path().join("yolov8n.safetensors");
     vlnav_detector::yolov8::YoloV8::write_random_weights(&weights, vlnav_detector::yolov8::Size::N, 80).unwrap();
-    let mut svc = start(Options { backend: BackendKind::Yolov8, yolo_weights: Some(weights), ..Default::default() }).await;
+    let mut svc =
+        start(Options { backend: BackendKind::Yolov8, yolo_weights: Some(weights), ..Default::default() }).await;
     let info = svc.client.get_model_info(v1::GetModelInfoRequest {}).await.unwrap().into_inner();
     assert_eq!((info.backend.as_str(), info.model.as_str(), info.input_width), ("yolov8", "yolov8n", 640));
     // Random weights detect nonsense, but every box is well formed, filtered and inside the image.

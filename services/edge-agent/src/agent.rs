@@ -44,7 +44,8 @@ pub struct Link {
 impl Link {
     /// Attaches to the gateway and sends `hello` first.
     pub async fn connect(opts: &EdgeOptions, hello: pb::EdgeHello) -> anyhow::Result<Link> {
-        let channel = vlnav_runtime::client::channel(&opts.gateway).with_context(|| format!("bad --gateway uri {}", opts.gateway))?;
+        let channel = vlnav_runtime::client::channel(&opts.gateway)
+            .with_context(|| format!("bad --gateway uri {}", opts.gateway))?;
         let mut client = FleetServiceClient::new(channel)
             .max_decoding_message_size(opts.max_message_bytes)
             .max_encoding_message_size(opts.max_message_bytes);
@@ -53,7 +54,9 @@ impl Link {
         let attach = client.attach(tokio_stream::wrappers::ReceiverStream::new(rx));
         let response = tokio::time::timeout(Duration::from_secs_f64(opts.liveness_timeout_s), attach)
             .await
-            .map_err(|_| anyhow::anyhow!("gateway {} did not answer Attach within {} s", opts.gateway, opts.liveness_timeout_s))?
+            .map_err(|_| {
+                anyhow::anyhow!("gateway {} did not answer Attach within {} s", opts.gateway, opts.liveness_timeout_s)
+            })?
             .with_context(|| format!("attaching to the gateway at {}", opts.gateway))?;
         Ok(Link { tx, rx: response.into_inner(), last_heard: Instant::now() })
     }
@@ -164,7 +167,9 @@ pub fn spawn_estop_signals(estop: crate::EstopSwitch, shutdown: CancellationToke
     #[cfg(unix)]
     {
         use tokio::signal::unix::{SignalKind, signal};
-        let (Ok(mut engage), Ok(mut release)) = (signal(SignalKind::user_defined1()), signal(SignalKind::user_defined2())) else {
+        let (Ok(mut engage), Ok(mut release)) =
+            (signal(SignalKind::user_defined1()), signal(SignalKind::user_defined2()))
+        else {
             tracing::warn!("cannot install SIGUSR1/SIGUSR2 e-stop handlers");
             return;
         };
@@ -205,8 +210,12 @@ impl SimRobot {
             odom: odom.pose,
             odom_twist: wheel,
         };
-        let frame = pb::SensorFrame { frame: Some(convert::sim_frame(meta, &self.frame)), truth: Some(convert::sim_truth(&truth)) };
-        let odo = pb::OdometryUpdate { stamp, pose: Some(convert::pose(&odom.pose)), twist: Some(convert::twist(&wheel)) };
+        let frame = pb::SensorFrame {
+            frame: Some(convert::sim_frame(meta, &self.frame)),
+            truth: Some(convert::sim_truth(&truth)),
+        };
+        let odo =
+            pb::OdometryUpdate { stamp, pose: Some(convert::pose(&odom.pose)), twist: Some(convert::twist(&wheel)) };
         self.seq += 1;
         (frame, odo, truth, odom)
     }
@@ -230,7 +239,8 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
         sim.set_camera(cam.with_resolution(w, h).map_err(|e| anyhow::anyhow!("--width/--height: {e}"))?);
     }
     let params = *sim.params();
-    let desc = RobotDescription { limits: limits_of(&params), footprint_length: params.length, footprint_width: params.width };
+    let desc =
+        RobotDescription { limits: limits_of(&params), footprint_length: params.length, footprint_width: params.width };
     let camera = convert::sim_camera_info(sim.camera());
     let hello = pb::EdgeHello {
         robot_id: opts.robot_id.clone(),
@@ -249,7 +259,8 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
         max_time: opts.max_sim_time_s,
     };
     let mut gov = Governor::new(desc.limits, opts.deadman_timeout_s);
-    let mut backoff = Backoff::new(Duration::from_secs_f64(opts.reconnect_initial_s), Duration::from_secs_f64(opts.reconnect_max_s));
+    let mut backoff =
+        Backoff::new(Duration::from_secs_f64(opts.reconnect_initial_s), Duration::from_secs_f64(opts.reconnect_max_s));
     let mut status = StatusReporter::default();
     tracing::info!(robot = %opts.robot_id, scenario = %opts.scenario, lockstep = opts.lockstep, gateway = %opts.gateway, "sim edge agent starting");
     loop {
@@ -265,8 +276,15 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
                 backoff.reset();
                 status.reset();
                 tracing::info!(robot = %opts.robot_id, "attached to the gateway");
-                let mut session =
-                    Session { opts, robot: &mut robot, gov: &mut gov, link: &mut link, status: &mut status, hooks: &hooks, shutdown: &shutdown };
+                let mut session = Session {
+                    opts,
+                    robot: &mut robot,
+                    gov: &mut gov,
+                    link: &mut link,
+                    status: &mut status,
+                    hooks: &hooks,
+                    shutdown: &shutdown,
+                };
                 if opts.lockstep { session.lockstep().await } else { session.realtime().await }
             }
             Err(e) => SessionEnd::Lost(format!("{e:#}")),
@@ -288,7 +306,14 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
 /// Waits `delay` with the robot stopped. In real time the world keeps
 /// moving (pedestrians walk, the robot brakes); in lockstep it is frozen.
 /// Returns true when the run should end.
-async fn hold_stopped(opts: &EdgeOptions, robot: &mut SimRobot, gov: &mut Governor, hooks: &Hooks, delay: Duration, shutdown: &CancellationToken) -> bool {
+async fn hold_stopped(
+    opts: &EdgeOptions,
+    robot: &mut SimRobot,
+    gov: &mut Governor,
+    hooks: &Hooks,
+    delay: Duration,
+    shutdown: &CancellationToken,
+) -> bool {
     let until = Instant::now() + delay;
     if opts.lockstep {
         tokio::select! {
@@ -312,7 +337,15 @@ async fn hold_stopped(opts: &EdgeOptions, robot: &mut SimRobot, gov: &mut Govern
     }
 }
 
-fn observe(hooks: &Hooks, robot: &SimRobot, applied: Twist, verdict: Verdict, gov: &Governor, idle: bool, mission_id: String) {
+fn observe(
+    hooks: &Hooks,
+    robot: &SimRobot,
+    applied: Twist,
+    verdict: Verdict,
+    gov: &Governor,
+    idle: bool,
+    mission_id: String,
+) {
     if let Some(obs) = &hooks.observer {
         let _ = obs.send(StepRecord {
             seq: robot.seq.saturating_sub(1),
@@ -352,7 +385,10 @@ impl Session<'_> {
             }
             let (frame, odo, _, _) = robot.capture();
             let stamp = robot.sim.time();
-            for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
+            for msg in [
+                convert::edge(pb::edge_message::Kind::Odometry(odo)),
+                convert::edge(pb::edge_message::Kind::Frame(frame)),
+            ] {
                 tokio::select! {
                     _ = shutdown.cancelled() => return SessionEnd::Finished,
                     r = link.send(msg) => if let Err(e) = r { return SessionEnd::Lost(e) },
@@ -371,7 +407,9 @@ impl Session<'_> {
                 match msg {
                     Err(e) => return SessionEnd::Lost(e),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => break v,
-                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => {
+                        robot.sim.reset_odometry()
+                    }
                     Ok(_) => {}
                 }
             };

@@ -77,7 +77,12 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
         seq: meta.seq,
         stamp: meta.stamp,
         camera: Some(meta.camera),
-        rgb: Some(pb::Image { width: f.width, height: f.height, encoding: pb::ImageEncoding::Rgb8 as i32, data: f.rgb.clone() }),
+        rgb: Some(pb::Image {
+            width: f.width,
+            height: f.height,
+            encoding: pb::ImageEncoding::Rgb8 as i32,
+            data: f.rgb.clone(),
+        }),
         depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: u16_le(&f.depth_mm) }),
         odom: Some(pose(&meta.odom)),
         odom_twist: Some(twist(&meta.odom_twist)),

@@ -169,7 +169,11 @@ impl EdgeOptions {
     /// Checks the settings; the error names the flag.
     pub fn validate(&self) -> anyhow::Result<()> {
         let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 { Ok(()) } else { Err(anyhow::anyhow!("--{name} must be a positive number, got {v}")) }
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(anyhow::anyhow!("--{name} must be a positive number, got {v}"))
+            }
         };
         positive("deadman-timeout-s", self.deadman_timeout_s)?;
         positive("frame-rate", self.frame_rate)?;

@@ -3,7 +3,10 @@
 use clap::Parser;
 
 #[derive(Parser, Debug)]
-#[command(name = "vlnav-edge", about = "Fleet edge agent: streams a robot's sensors to the vlnav gateway and applies its velocity commands behind a local deadman")]
+#[command(
+    name = "vlnav-edge",
+    about = "Fleet edge agent: streams a robot's sensors to the vlnav gateway and applies its velocity commands behind a local deadman"
+)]
 struct Cli {
     #[command(flatten)]
     edge: vlnav_edge_agent::EdgeOptions,

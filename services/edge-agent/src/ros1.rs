@@ -53,7 +53,14 @@ pub fn rgb_from_ros(encoding: &str, width: u32, height: u32, step: u32, data: &[
 
 /// Converts a ROS depth image (16UC1 millimetres or 32FC1 metres) to
 /// little-endian u16 millimetres, 0 for invalid.
-pub fn depth_from_ros(encoding: &str, big_endian: bool, width: u32, height: u32, step: u32, data: &[u8]) -> Result<Vec<u8>, String> {
+pub fn depth_from_ros(
+    encoding: &str,
+    big_endian: bool,
+    width: u32,
+    height: u32,
+    step: u32,
+    data: &[u8],
+) -> Result<Vec<u8>, String> {
     let bytes_per = match encoding {
         "16UC1" | "mono16" => 2,
         "32FC1" => 4,
@@ -151,7 +158,14 @@ impl Shared {
         }
         let (c, d) = (self.color.take()?, self.depth.take()?);
         self.last_frame_stamp = c.stamp;
-        Some(RosFrame { stamp: c.stamp, width: c.width, height: c.height, rgb: c.data, depth_mm_le: d.data, intrinsics: self.intrinsics })
+        Some(RosFrame {
+            stamp: c.stamp,
+            width: c.width,
+            height: c.height,
+            rgb: c.data,
+            depth_mm_le: d.data,
+            intrinsics: self.intrinsics,
+        })
     }
 }
 
@@ -184,7 +198,11 @@ impl RosRobot {
             ros.subscribe(&opts.odom_topic, 4, move |m: rosmsg::nav_msgs::Odometry| {
                 let stamp = stamp_of(&m.header.stamp);
                 let p = &m.pose.pose;
-                let pose = Pose2::new(p.position.x, p.position.y, yaw_of(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w));
+                let pose = Pose2::new(
+                    p.position.x,
+                    p.position.y,
+                    yaw_of(p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w),
+                );
                 let twist = Twist::new(m.twist.twist.linear.x, m.twist.twist.angular.z);
                 let mut g = s.lock().unwrap_or_else(|e| e.into_inner());
                 g.clock.observe(stamp, Instant::now());
@@ -273,13 +291,23 @@ fn limits_of(opts: &EdgeOptions) -> Limits {
     }
 }
 
-fn camera_info(opts: &EdgeOptions, width: u32, height: u32, intrinsics: Option<pb::CameraIntrinsics>) -> pb::CameraInfo {
+fn camera_info(
+    opts: &EdgeOptions,
+    width: u32,
+    height: u32,
+    intrinsics: Option<pb::CameraIntrinsics>,
+) -> pb::CameraInfo {
     let m = &opts.camera_mount;
     pb::CameraInfo {
         width,
         height,
         intrinsics,
-        mount: Some(pb::CameraMount { translation: Some(pb::Point3 { x: m[0], y: m[1], z: m[2] }), roll: 0.0, pitch: 0.0, yaw: m[3] }),
+        mount: Some(pb::CameraMount {
+            translation: Some(pb::Point3 { x: m[0], y: m[1], z: m[2] }),
+            roll: 0.0,
+            pitch: 0.0,
+            yaw: m[3],
+        }),
         // The D455's usable depth range (the paper limits subgoals to 10 m).
         depth_min_m: 0.3,
         depth_max_m: 10.0,
@@ -289,7 +317,8 @@ fn camera_info(opts: &EdgeOptions, width: u32, height: u32, intrinsics: Option<p
 /// Runs the `ros1` driver until shutdown: the ROS node lives for the whole
 /// run; the gateway link reconnects with backoff while `/cmd_vel` holds zero.
 pub async fn run_ros1(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hooks) -> anyhow::Result<()> {
-    let mut backoff = Backoff::new(Duration::from_secs_f64(opts.reconnect_initial_s), Duration::from_secs_f64(opts.reconnect_max_s));
+    let mut backoff =
+        Backoff::new(Duration::from_secs_f64(opts.reconnect_initial_s), Duration::from_secs_f64(opts.reconnect_max_s));
     let mut robot = loop {
         let o = opts.clone();
         match tokio::task::spawn_blocking(move || RosRobot::start(&o)).await? {

@@ -144,7 +144,10 @@ pub fn clamp_velocity(cmd: Twist, l: &Limits) -> (Twist, bool) {
 /// Moves from `prev` towards `target` by at most the acceleration limits over `dt`.
 pub fn ramp(prev: Twist, target: Twist, l: &Limits, dt: f64) -> Twist {
     let step = |p: f64, t: f64, a: f64| p + (t - p).clamp(-a * dt, a * dt);
-    Twist::new(step(prev.linear, target.linear, l.max_linear_accel), step(prev.angular, target.angular, l.max_angular_accel))
+    Twist::new(
+        step(prev.linear, target.linear, l.max_linear_accel),
+        step(prev.angular, target.angular, l.max_angular_accel),
+    )
 }
 
 /// Exponential backoff for reconnecting: `initial`, doubling, capped at `max`;
@@ -226,7 +229,9 @@ mod tests {
             let (out, v) = g.output(t);
             assert!(matches!(v, Verdict::Commanded { clamped: true }));
             assert!(out.linear <= 1.0 && out.angular >= -2.0);
-            assert!((out.linear - prev.linear).abs() <= 0.3 + 1e-12 && (out.angular - prev.angular).abs() <= 0.6 + 1e-12);
+            assert!(
+                (out.linear - prev.linear).abs() <= 0.3 + 1e-12 && (out.angular - prev.angular).abs() <= 0.6 + 1e-12
+            );
             prev = out;
         }
         assert_eq!(prev, Twist::new(1.0, -2.0));

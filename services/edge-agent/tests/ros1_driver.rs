@@ -96,7 +96,10 @@ async fn ros1_driver_clamps_and_its_deadman_zeroes_cmd_vel_on_a_real_roscore() {
     // The Debian interpreter: rospy lives in its dist-packages, not in other Pythons on PATH.
     let python = if std::path::Path::new("/usr/bin/python3").exists() { "/usr/bin/python3" } else { "python3" };
     let mut husky = Command::new(python);
-    husky.arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fake_husky.py")).stdout(Stdio::null()).stderr(Stdio::inherit());
+    husky
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fake_husky.py"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
     ros_env(&mut husky, &master, home.path());
     let _husky = spawn("python3 fake_husky.py", husky);
 
@@ -125,10 +128,21 @@ async fn ros1_driver_clamps_and_its_deadman_zeroes_cmd_vel_on_a_real_roscore() {
     let (uri, log) = common::start(script, token.clone()).await;
 
     let mut edge = Command::new(env!("CARGO_BIN_EXE_vlnav-edge"));
-    edge.args(["--driver", "ros1", "--gateway", &uri, "--robot-id", "husky-ros", "--control-rate-hz", "20", "--liveness-timeout-s", "60"])
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit());
+    edge.args([
+        "--driver",
+        "ros1",
+        "--gateway",
+        &uri,
+        "--robot-id",
+        "husky-ros",
+        "--control-rate-hz",
+        "20",
+        "--liveness-timeout-s",
+        "60",
+    ])
+    .env("RUST_LOG", "warn")
+    .stdout(Stdio::null())
+    .stderr(Stdio::inherit());
     ros_env(&mut edge, &master, home.path());
     let edge = spawn("vlnav-edge", edge);
 

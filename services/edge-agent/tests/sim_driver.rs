@@ -49,7 +49,10 @@ async fn lockstep_sends_hello_then_frames_and_replays_bit_for_bit() {
         let hello = &log.hellos[0];
         assert_eq!((hello.robot_id.as_str(), hello.driver.as_str(), hello.lockstep), ("husky-1", "sim", true));
         let limits = hello.limits.unwrap();
-        assert_eq!((limits.max_linear, limits.max_angular, limits.footprint_length, limits.footprint_width), (1.0, 2.0, 0.988, 0.670));
+        assert_eq!(
+            (limits.max_linear, limits.max_angular, limits.footprint_length, limits.footprint_width),
+            (1.0, 2.0, 0.988, 0.670)
+        );
         let cam = hello.camera.unwrap();
         assert_eq!((cam.width, cam.height), (160, 120));
         // One frame per 0.1 s of simulated time, each answered, each with truth and labels.
@@ -70,7 +73,16 @@ async fn lockstep_sends_hello_then_frames_and_replays_bit_for_bit() {
         r.iter()
             .flat_map(|s| {
                 let t = s.truth.as_ref().unwrap();
-                [t.pose.x, t.pose.y, t.pose.theta, s.odom.x, s.odom.y, s.odom.theta, s.applied.linear, s.applied.angular]
+                [
+                    t.pose.x,
+                    t.pose.y,
+                    t.pose.theta,
+                    s.odom.x,
+                    s.odom.y,
+                    s.odom.theta,
+                    s.applied.linear,
+                    s.applied.angular,
+                ]
             })
             .map(f64::to_bits)
             .collect()
@@ -84,7 +96,8 @@ async fn lockstep_sends_hello_then_frames_and_replays_bit_for_bit() {
 async fn lockstep_commands_with_stale_stamps_trip_the_deadman() {
     let token = CancellationToken::new();
     // Every answer carries the stamp of a frame 0.5 s earlier than the one it answers.
-    let script: common::Script = Arc::new(|_, _, stamp| Reply::Command { stamp: stamp - 0.5, linear: 0.8, angular: 0.0, idle: false });
+    let script: common::Script =
+        Arc::new(|_, _, stamp| Reply::Command { stamp: stamp - 0.5, linear: 0.8, angular: 0.0, idle: false });
     let (uri, log) = start(script, token.clone()).await;
     let records = run_episode(sim_opts(&uri, true, 2.0), CancellationToken::new()).await.unwrap();
     token.cancel();
@@ -122,7 +135,11 @@ async fn realtime_deadman_stops_the_robot_within_timeout_plus_one_cycle() {
     let token = CancellationToken::new();
     // Answer the first 8 frames, then fall silent.
     let script: common::Script =
-        Arc::new(|_, k, stamp| if k < 8 { Reply::Command { stamp, linear: 0.5, angular: 0.0, idle: false } } else { Reply::Silence });
+        Arc::new(
+            |_, k, stamp| {
+                if k < 8 { Reply::Command { stamp, linear: 0.5, angular: 0.0, idle: false } } else { Reply::Silence }
+            },
+        );
     let (uri, log) = start(script, token.clone()).await;
     let records = run_episode(sim_opts(&uri, false, 2.0), CancellationToken::new()).await.unwrap();
     token.cancel();
@@ -177,7 +194,8 @@ async fn estop_holds_zero_until_released_and_is_reported() {
 async fn a_closed_idle_gate_holds_a_lockstep_robot_between_frames_until_opened() {
     let token = CancellationToken::new();
     // Idle answers: the gateway has no mission for this robot.
-    let script: common::Script = Arc::new(|_, _, stamp| Reply::Command { stamp, linear: 0.0, angular: 0.0, idle: true });
+    let script: common::Script =
+        Arc::new(|_, _, stamp| Reply::Command { stamp, linear: 0.0, angular: 0.0, idle: true });
     let (uri, log) = start(script, token.clone()).await;
     let gate = IdleGate::closed();
     let (tx, mut rx) = mpsc::unbounded_channel();
@@ -208,7 +226,11 @@ async fn a_silent_gateway_is_noticed_and_the_agent_reconnects_holding_still() {
     let token = CancellationToken::new();
     // First attach: answer 5 frames then go silent. Second attach: answer everything.
     let script: common::Script = Arc::new(|attach, k, stamp| {
-        if attach == 0 && k >= 5 { Reply::Silence } else { Reply::Command { stamp, linear: 0.5, angular: 0.0, idle: false } }
+        if attach == 0 && k >= 5 {
+            Reply::Silence
+        } else {
+            Reply::Command { stamp, linear: 0.5, angular: 0.0, idle: false }
+        }
     });
     let (uri, log) = start(script, token.clone()).await;
     let opts = EdgeOptions { liveness_timeout_s: 0.5, reconnect_initial_s: 0.05, ..sim_opts(&uri, true, 1.5) };
@@ -218,7 +240,8 @@ async fn a_silent_gateway_is_noticed_and_the_agent_reconnects_holding_still() {
     assert_eq!(log.hellos.len(), 2, "reconnected once");
     // The frame left unanswered is sent again after reconnecting, at the same
     // sensor time: lockstep time stood still while the link was down.
-    let second: Vec<f64> = log.frames.iter().filter(|(a, _)| *a == 1).map(|(_, f)| f.frame.as_ref().unwrap().stamp).collect();
+    let second: Vec<f64> =
+        log.frames.iter().filter(|(a, _)| *a == 1).map(|(_, f)| f.frame.as_ref().unwrap().stamp).collect();
     assert!((second[0] - 0.5).abs() < 1e-9, "resumed at {}", second[0]);
     assert_eq!(records.len(), 15);
 }
@@ -232,13 +255,16 @@ async fn a_bad_scenario_or_option_is_an_error_that_says_what() {
     let e = vlnav_edge_agent::run(opts, CancellationToken::new()).await.unwrap_err();
     assert!(e.to_string().contains("--deadman-timeout-s"), "{e}");
     let opts = EdgeOptions { lockstep: true, driver: vlnav_edge_agent::DriverKind::Ros1, ..EdgeOptions::default() };
-    assert!(vlnav_edge_agent::run(opts, CancellationToken::new()).await.unwrap_err().to_string().contains("--lockstep"));
+    assert!(
+        vlnav_edge_agent::run(opts, CancellationToken::new()).await.unwrap_err().to_string().contains("--lockstep")
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn lockstep_paces_frames_at_real_time_while_the_gateway_is_idle() {
     let token = CancellationToken::new();
-    let script: common::Script = Arc::new(|_, _, stamp| Reply::Command { stamp, linear: 0.0, angular: 0.0, idle: true });
+    let script: common::Script =
+        Arc::new(|_, _, stamp| Reply::Command { stamp, linear: 0.0, angular: 0.0, idle: true });
     let (uri, _log) = start(script, token.clone()).await;
     let began = std::time::Instant::now();
     let records = run_episode(sim_opts(&uri, true, 1.0), CancellationToken::new()).await.unwrap();

@@ -33,7 +33,8 @@ fn main() {
     let opts = common::options();
     let device = device_from_name(&device_name).expect("device");
     let load_start = Instant::now();
-    let mut recognizer = SpeechRecognizer::load(&ModelFiles::in_dir(&opts.whisper_dir()), &device).expect("load Whisper");
+    let mut recognizer =
+        SpeechRecognizer::load(&ModelFiles::in_dir(&opts.whisper_dir()), &device).expect("load Whisper");
     let mut decode = vlnav_ingress::whisper::DecodeOptions::default();
     if let Ok(p) = std::env::var("VLNAV_INGRESS_PROMPT") {
         decode.prompt = p;
@@ -42,7 +43,8 @@ fn main() {
         decode.beam_size = b.parse().expect("VLNAV_INGRESS_BEAM_SIZE: a whole number");
     }
     if let Ok(m) = std::env::var("VLNAV_INGRESS_WINDOW_MARGIN_S") {
-        decode.window_margin_s = if m == "none" { None } else { Some(m.parse().expect("VLNAV_INGRESS_WINDOW_MARGIN_S: seconds or none")) };
+        decode.window_margin_s =
+            if m == "none" { None } else { Some(m.parse().expect("VLNAV_INGRESS_WINDOW_MARGIN_S: seconds or none")) };
     }
     recognizer.set_options(decode.clone()).expect("decoding options");
     let load_s = load_start.elapsed().as_secs_f64();
@@ -101,5 +103,8 @@ fn main() {
             (f + m) / speech_s
         );
     }
-    println!("overall RTF {:.3} ({total_compute:.2} s for {total_speech:.1} s of speech)", total_compute / total_speech);
+    println!(
+        "overall RTF {:.3} ({total_compute:.2} s for {total_speech:.1} s of speech)",
+        total_compute / total_speech
+    );
 }

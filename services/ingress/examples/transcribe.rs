@@ -18,7 +18,8 @@ use vlnav_ingress::{ModelFiles, SpeechRecognizer};
 fn main() -> anyhow::Result<()> {
     let models = std::env::var("VLNAV_MODELS_DIR").unwrap_or_else(|_| "models".into());
     let device = device_from_name(&std::env::var("VLNAV_INGRESS_DEVICE").unwrap_or_else(|_| "cpu".into()))?;
-    let mut recognizer = SpeechRecognizer::load(&ModelFiles::in_dir(&std::path::Path::new(&models).join("whisper")), &device)?;
+    let mut recognizer =
+        SpeechRecognizer::load(&ModelFiles::in_dir(&std::path::Path::new(&models).join("whisper")), &device)?;
     let mut options = DecodeOptions::default();
     if let Ok(p) = std::env::var("VLNAV_INGRESS_PROMPT") {
         options.prompt = p;

@@ -172,7 +172,9 @@ pub fn parse_wav_header(bytes: &[u8]) -> Result<Option<WavHeader>, AudioError> {
     let mut fmt: Option<(SampleEncoding, u16, u32)> = None;
     loop {
         if at > MAX_WAV_HEADER_BYTES {
-            return Err(AudioError::MalformedWav(format!("no data chunk within the first {MAX_WAV_HEADER_BYTES} bytes")));
+            return Err(AudioError::MalformedWav(format!(
+                "no data chunk within the first {MAX_WAV_HEADER_BYTES} bytes"
+            )));
         }
         if bytes.len() < at + 8 {
             return Ok(None);

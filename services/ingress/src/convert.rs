@@ -108,7 +108,11 @@ impl<'a> Converter<'_, 'a> {
     fn expect_shape(&self, name: &str, shape: &[usize]) -> Result<&ct2::Variable<'a>, ConvertError> {
         let v = self.var(name)?;
         if v.shape != shape {
-            return Err(ConvertError::Shape { name: name.into(), shape: v.shape.clone(), expected: format!("{shape:?}") });
+            return Err(ConvertError::Shape {
+                name: name.into(),
+                shape: v.shape.clone(),
+                expected: format!("{shape:?}"),
+            });
         }
         Ok(v)
     }
@@ -176,12 +180,17 @@ impl<'a> Converter<'_, 'a> {
     }
 
     fn count_layers(&self, prefix: &str) -> usize {
-        (0..).take_while(|i| self.model.variables.keys().any(|k| k.starts_with(&format!("{prefix}/layer_{i}/")))).count()
+        (0..)
+            .take_while(|i| self.model.variables.keys().any(|k| k.starts_with(&format!("{prefix}/layer_{i}/"))))
+            .count()
     }
 }
 
 /// Maps every weight of a CTranslate2 Whisper model to candle's names.
-pub fn convert<'a>(model: &ct2::Model<'a>, ct2_config: &Ct2Config) -> Result<(Vec<NamedTensor<'a>>, WhisperConfig), ConvertError> {
+pub fn convert<'a>(
+    model: &ct2::Model<'a>,
+    ct2_config: &Ct2Config,
+) -> Result<(Vec<NamedTensor<'a>>, WhisperConfig), ConvertError> {
     if model.spec != "WhisperSpec" {
         return Err(ConvertError::NotWhisper(model.spec.clone()));
     }
@@ -258,7 +267,11 @@ pub fn convert<'a>(model: &ct2::Model<'a>, ct2_config: &Ct2Config) -> Result<(Ve
 /// Reads `model.bin` and `config.json` of a CTranslate2 Whisper model and
 /// writes `model.safetensors` and `config.json` into `out_dir`. Returns the
 /// number of tensors written.
-pub fn convert_files(model_bin: &Path, ct2_config_json: &Path, out_dir: &Path) -> anyhow::Result<(usize, WhisperConfig)> {
+pub fn convert_files(
+    model_bin: &Path,
+    ct2_config_json: &Path,
+    out_dir: &Path,
+) -> anyhow::Result<(usize, WhisperConfig)> {
     use anyhow::Context;
     let bytes = std::fs::read(model_bin).with_context(|| format!("reading {}", model_bin.display()))?;
     let model = ct2::parse(&bytes).with_context(|| format!("parsing {}", model_bin.display()))?;
@@ -350,7 +363,8 @@ mod tests {
                     vars.push((format!("{p}/attention/{l}/bias"), vec![rows], DType::F32, seq(rows, 0.0)));
                 }
                 // Fused kv: k rows 500+, v rows 600+.
-                let w: Vec<f32> = (0..d * d).map(|i| 500.0 + i as f32).chain((0..d * d).map(|i| 600.0 + i as f32)).collect();
+                let w: Vec<f32> =
+                    (0..d * d).map(|i| 500.0 + i as f32).chain((0..d * d).map(|i| 600.0 + i as f32)).collect();
                 let b: Vec<f32> = vec![0.0; d].into_iter().chain((0..d).map(|i| 650.0 + i as f32)).collect();
                 vars.push((format!("{p}/attention/linear_1/weight"), vec![2 * d, d], DType::F32, f32s(w)));
                 vars.push((format!("{p}/attention/linear_1/bias"), vec![2 * d], DType::F32, f32s(b)));
@@ -420,7 +434,10 @@ mod tests {
         assert_eq!(convert(&m, &Ct2Config::default()).unwrap_err(), ConvertError::NotWhisper("TransformerSpec".into()));
         let empty = write("WhisperSpec", 3, &[], &[]);
         let m = ct2::parse(&empty).unwrap();
-        assert_eq!(convert(&m, &Ct2Config::default()).unwrap_err(), ConvertError::Missing("encoder/conv1/weight".into()));
+        assert_eq!(
+            convert(&m, &Ct2Config::default()).unwrap_err(),
+            ConvertError::Missing("encoder/conv1/weight".into())
+        );
     }
 
     #[test]

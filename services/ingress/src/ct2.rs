@@ -171,7 +171,12 @@ pub fn parse(bytes: &[u8]) -> Result<Model<'_>, Ct2Error> {
 }
 
 /// Writes a `model.bin` (the inverse of [`parse`]); used to build test models.
-pub fn write(spec: &str, spec_revision: u32, variables: &[(&str, Vec<usize>, DType, Vec<u8>)], aliases: &[(&str, &str)]) -> Vec<u8> {
+pub fn write(
+    spec: &str,
+    spec_revision: u32,
+    variables: &[(&str, Vec<usize>, DType, Vec<u8>)],
+    aliases: &[(&str, &str)],
+) -> Vec<u8> {
     fn string(out: &mut Vec<u8>, s: &str) {
         out.extend_from_slice(&((s.len() + 1) as u16).to_le_bytes());
         out.extend_from_slice(s.as_bytes());

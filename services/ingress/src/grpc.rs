@@ -78,7 +78,9 @@ impl IngressApi {
         received_bytes: usize,
     ) -> Result<Option<AudioChunk>, IngressError> {
         match tokio::time::timeout(self.settings.chunk_timeout, stream.message()).await {
-            Err(_) => Err(IngressError::Stalled { waited_s: self.settings.chunk_timeout.as_secs_f64(), received_bytes }),
+            Err(_) => {
+                Err(IngressError::Stalled { waited_s: self.settings.chunk_timeout.as_secs_f64(), received_bytes })
+            }
             Ok(Err(status)) => Err(IngressError::ClientStream { received_bytes, status: status.message().to_string() }),
             Ok(Ok(chunk)) => Ok(chunk),
         }
@@ -128,10 +130,7 @@ impl IngressApi {
             .await
             .map_err(|e| ModelError::Inference(candle_core::Error::Msg(format!("audio preparation failed: {e}"))))??;
         let seconds = speech.seconds();
-        let recognition = self
-            .mailbox
-            .call(|reply| ActorRequest::Recognize { speech, reply })
-            .await??;
+        let recognition = self.mailbox.call(|reply| ActorRequest::Recognize { speech, reply }).await??;
         let text = normalize_instruction(&recognition.text);
         if text.is_empty() {
             return Err(IngressError::NothingRecognised { seconds });
@@ -153,7 +152,9 @@ pub fn normalize_request(text: &str) -> Result<String, IngressError> {
     if normalized.is_empty() {
         return Err(IngressError::InvalidField {
             field: "text",
-            message: "empty after normalisation (only whitespace, control or invisible characters); type the instruction".into(),
+            message:
+                "empty after normalisation (only whitespace, control or invisible characters); type the instruction"
+                    .into(),
         });
     }
     let n = normalized.chars().count();

@@ -23,7 +23,9 @@ pub enum InputError {
     Audio(#[from] AudioError),
     #[error("the audio is {seconds:.1} s long; at most {limit_s:.0} s is accepted")]
     TooLong { seconds: f64, limit_s: f64 },
-    #[error("no speech found: all {seconds:.1} s are silence (quieter than {floor_dbfs} dBFS or {relative_db} dB below the loudest part)")]
+    #[error(
+        "no speech found: all {seconds:.1} s are silence (quieter than {floor_dbfs} dBFS or {relative_db} dB below the loudest part)"
+    )]
     NoSpeech { seconds: f64, floor_dbfs: f64, relative_db: f64 },
 }
 

@@ -111,7 +111,10 @@ impl Options {
 
 /// Loads Whisper, starts its actor and returns the ingress service.
 /// Fails when a model file is missing, naming it and `deploy/fetch-models.sh`.
-pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+pub async fn services(
+    opts: &Options,
+    server: &vlnav_runtime::ServerConfig,
+) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     anyhow::ensure!(
         opts.max_audio_s.is_finite() && opts.max_audio_s > 0.0,
         "ingress: max audio length must be a positive number of seconds, got {}",

@@ -1,7 +1,10 @@
 use clap::Parser;
 
 #[derive(Parser)]
-#[command(name = "vlnav-ingress", about = "Speech and text ingress: Whisper tiny.en transcription and instruction normalisation")]
+#[command(
+    name = "vlnav-ingress",
+    about = "Speech and text ingress: Whisper tiny.en transcription and instruction normalisation"
+)]
 struct Cli {
     #[command(flatten)]
     server: vlnav_runtime::ServerConfig,

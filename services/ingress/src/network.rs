@@ -65,7 +65,12 @@ impl Attention {
 
     /// Self-attention of `x`; with a cache, `x` holds only the new positions
     /// and their keys/values are appended to it.
-    fn self_attend(&self, x: &Tensor, cache: Option<&mut Option<(Tensor, Tensor)>>, mask: Option<&Tensor>) -> Result<Tensor> {
+    fn self_attend(
+        &self,
+        x: &Tensor,
+        cache: Option<&mut Option<(Tensor, Tensor)>>,
+        mask: Option<&Tensor>,
+    ) -> Result<Tensor> {
         let q = split_heads(&self.query.forward(x)?, self.heads)?;
         let (mut k, mut v) = self.keys_values(x)?;
         if let Some(cache) = cache {
@@ -220,7 +225,8 @@ impl Decoder {
         }
         let device = self.embedding.device();
         let ids = Tensor::new(tokens, device)?;
-        let mut x = self.embedding.index_select(&ids, 0)?.broadcast_add(&self.positions.narrow(0, past, n)?)?.unsqueeze(0)?;
+        let mut x =
+            self.embedding.index_select(&ids, 0)?.broadcast_add(&self.positions.narrow(0, past, n)?)?.unsqueeze(0)?;
         // New position i may see cached positions and new ones up to itself.
         let mask = if n > 1 {
             let m: Vec<f32> = (0..n)
@@ -231,7 +237,8 @@ impl Decoder {
             None
         };
         for (i, block) in self.blocks.iter().enumerate() {
-            let attn = block.attn.self_attend(&block.attn_ln.forward(&x)?, Some(&mut state.self_kv[i]), mask.as_ref())?;
+            let attn =
+                block.attn.self_attend(&block.attn_ln.forward(&x)?, Some(&mut state.self_kv[i]), mask.as_ref())?;
             x = (&x + attn)?;
             let (cross, cross_ln) = block.cross.as_ref().expect("decoder blocks have cross-attention");
             x = (&x + cross.cross_attend(&cross_ln.forward(&x)?, &state.cross_kv[i])?)?;

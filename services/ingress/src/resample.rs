@@ -64,7 +64,8 @@ pub fn resample(input: &[f32], from_hz: u32, to_hz: u32) -> Vec<f32> {
                 continue;
             }
             let x = 2.0 * cutoff * t;
-            let sinc = if x.abs() < 1e-12 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) };
+            let sinc =
+                if x.abs() < 1e-12 { 1.0 } else { (std::f64::consts::PI * x).sin() / (std::f64::consts::PI * x) };
             let window = bessel_i0(KAISER_BETA * (1.0 - r * r).sqrt()) / norm;
             *w = 2.0 * cutoff * sinc * window;
             sum += *w;

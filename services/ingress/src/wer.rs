@@ -5,8 +5,26 @@
 
 fn small_number(word: &str) -> Option<u32> {
     const UNITS: [&str; 20] = [
-        "zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven", "twelve",
-        "thirteen", "fourteen", "fifteen", "sixteen", "seventeen", "eighteen", "nineteen",
+        "zero",
+        "one",
+        "two",
+        "three",
+        "four",
+        "five",
+        "six",
+        "seven",
+        "eight",
+        "nine",
+        "ten",
+        "eleven",
+        "twelve",
+        "thirteen",
+        "fourteen",
+        "fifteen",
+        "sixteen",
+        "seventeen",
+        "eighteen",
+        "nineteen",
     ];
     const TENS: [&str; 8] = ["twenty", "thirty", "forty", "fifty", "sixty", "seventy", "eighty", "ninety"];
     if let Some(i) = UNITS.iter().position(|u| *u == word) {
@@ -48,7 +66,11 @@ pub fn scoring_words(text: &str) -> Vec<String> {
     let mut i = 0;
     while i < raw.len() {
         match small_number(raw[i]) {
-            Some(tens) if tens >= 20 && i + 1 < raw.len() && small_number(raw[i + 1]).is_some_and(|u| (1..10).contains(&u)) => {
+            Some(tens)
+                if tens >= 20
+                    && i + 1 < raw.len()
+                    && small_number(raw[i + 1]).is_some_and(|u| (1..10).contains(&u)) =>
+            {
                 words.push((tens + small_number(raw[i + 1]).unwrap_or(0)).to_string());
                 i += 2;
             }

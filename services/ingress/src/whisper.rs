@@ -45,13 +45,18 @@ impl ModelFiles {
 
     /// The first file that does not exist, if any.
     pub fn missing(&self) -> Option<&Path> {
-        [&self.weights, &self.config, &self.tokenizer, &self.mel_filters].into_iter().find(|p| !p.is_file()).map(|p| p.as_path())
+        [&self.weights, &self.config, &self.tokenizer, &self.mel_filters]
+            .into_iter()
+            .find(|p| !p.is_file())
+            .map(|p| p.as_path())
     }
 }
 
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    #[error("Whisper model file {0} is missing; run deploy/fetch-models.sh (it fetches and converts Whisper tiny.en into $VLNAV_MODELS_DIR/whisper)")]
+    #[error(
+        "Whisper model file {0} is missing; run deploy/fetch-models.sh (it fetches and converts Whisper tiny.en into $VLNAV_MODELS_DIR/whisper)"
+    )]
     Missing(PathBuf),
     #[error("cannot load {path}: {reason}")]
     Load { path: PathBuf, reason: String },
@@ -129,7 +134,8 @@ pub const DEFAULT_BEAM_SIZE: usize = 3;
 
 /// Robot-command vocabulary, said the way people address the robot (the
 /// paper's robot answers to "Buddy").
-pub const COMMAND_WORDS: &str = "Buddy, go to the statue, take a left turn, move ahead, find the chair, follow the person.";
+pub const COMMAND_WORDS: &str =
+    "Buddy, go to the statue, take a left turn, move ahead, find the chair, follow the person.";
 
 /// The default decoding prompt: every COCO-80 class name (the objects the
 /// robot can look for), then robot-command vocabulary — last, nearest to
@@ -174,15 +180,21 @@ impl SpeechRecognizer {
         if let Some(missing) = files.missing() {
             return Err(ModelError::Missing(missing.to_path_buf()));
         }
-        let config: WhisperConfig = serde_json::from_slice(&std::fs::read(&files.config).map_err(|e| load_err(&files.config, e))?)
-            .map_err(|e| load_err(&files.config, e))?;
+        let config: WhisperConfig =
+            serde_json::from_slice(&std::fs::read(&files.config).map_err(|e| load_err(&files.config, e))?)
+                .map_err(|e| load_err(&files.config, e))?;
 
         let raw = std::fs::read(&files.mel_filters).map_err(|e| load_err(&files.mel_filters, e))?;
         let expected = config.num_mel_bins * (w::N_FFT / 2 + 1);
         if raw.len() != expected * 4 {
             return Err(load_err(
                 &files.mel_filters,
-                format!("{} bytes, expected {expected} little-endian f32 ({} mel bins × {} FFT bins)", raw.len(), config.num_mel_bins, w::N_FFT / 2 + 1),
+                format!(
+                    "{} bytes, expected {expected} little-endian f32 ({} mel bins × {} FFT bins)",
+                    raw.len(),
+                    config.num_mel_bins,
+                    w::N_FFT / 2 + 1
+                ),
             ));
         }
         let mel_filters = raw.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
@@ -198,7 +210,8 @@ impl SpeechRecognizer {
         };
 
         let bytes = std::fs::read(&files.weights).map_err(|e| load_err(&files.weights, e))?;
-        let vb = VarBuilder::from_buffered_safetensors(bytes, DType::F32, device).map_err(|e| load_err(&files.weights, e))?;
+        let vb = VarBuilder::from_buffered_safetensors(bytes, DType::F32, device)
+            .map_err(|e| load_err(&files.weights, e))?;
         let network = Network::load(&config, vb).map_err(|e| load_err(&files.weights, e))?;
 
         // Never generated: the configured non-speech symbols and every special
@@ -243,7 +256,9 @@ impl SpeechRecognizer {
         if let Some(m) = options.window_margin_s
             && !(m.is_finite() && m >= 0.0)
         {
-            return Err(ModelError::Options(format!("window margin must be a non-negative number of seconds, got {m}")));
+            return Err(ModelError::Options(format!(
+                "window margin must be a non-negative number of seconds, got {m}"
+            )));
         }
         self.context = self.prompt_tokens(&options.prompt)?;
         self.options = options;
@@ -261,8 +276,10 @@ impl SpeechRecognizer {
             return Ok(Vec::new());
         }
         let start = self.special.start_of_previous.ok_or(ModelError::SpecialToken("<|startofprev|>"))?;
-        let encoding =
-            self.tokenizer.encode(format!(" {prompt}"), false).map_err(|e| ModelError::Options(format!("cannot tokenize the prompt: {e}")))?;
+        let encoding = self
+            .tokenizer
+            .encode(format!(" {prompt}"), false)
+            .map_err(|e| ModelError::Options(format!("cannot tokenize the prompt: {e}")))?;
         let ids = encoding.get_ids();
         let mut context = vec![start];
         context.extend_from_slice(&ids[ids.len().saturating_sub(MAX_PROMPT_TOKENS)..]);
@@ -296,8 +313,14 @@ impl SpeechRecognizer {
         let mel = Tensor::from_vec(mel, (1, cfg.num_mel_bins, n_frames), &self.device)?;
         let content_frames = pcm.len().div_ceil(w::HOP_LENGTH).max(1);
 
-        let mut result =
-            Recognition { text: String::new(), tokens: 0, no_speech_prob: 0.0, windows: 0, encode_s: 0.0, decode_s: 0.0 };
+        let mut result = Recognition {
+            text: String::new(),
+            tokens: 0,
+            no_speech_prob: 0.0,
+            windows: 0,
+            encode_s: 0.0,
+            decode_s: 0.0,
+        };
         result.encode_s = started.elapsed().as_secs_f64();
         let mut seek = 0;
         while seek < content_frames && seek + w::N_FRAMES <= n_frames && keep_going() {
@@ -321,7 +344,11 @@ impl SpeechRecognizer {
         Ok(result)
     }
 
-    fn decode_window(&mut self, mel: &Tensor, keep_going: &mut dyn FnMut() -> bool) -> Result<DecodedWindow, ModelError> {
+    fn decode_window(
+        &mut self,
+        mel: &Tensor,
+        keep_going: &mut dyn FnMut() -> bool,
+    ) -> Result<DecodedWindow, ModelError> {
         let started = std::time::Instant::now();
         let audio = self.network.encoder.forward(mel)?;
         let mut state = self.network.decoder.start(&audio)?;

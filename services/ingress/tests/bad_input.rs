@@ -9,8 +9,8 @@ use common::{CALL_TIMEOUT, chunks, options, serve, speak, transcribe};
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::Code;
-use vlnav_ingress::audio::{SampleEncoding, encode_wav};
 use vlnav_ingress::Options;
+use vlnav_ingress::audio::{SampleEncoding, encode_wav};
 use vlnav_proto::v1::{AudioChunk, AudioFormat, NormalizeTextRequest};
 
 fn expect_status(result: Result<vlnav_proto::v1::Transcript, tonic::Status>, code: Code, needle: &str) {
@@ -31,7 +31,11 @@ async fn malformed_audio_is_refused_with_the_reason() {
 
     // The format must be named, known and not change mid-stream.
     let wav = encode_wav(&[0.1; 1_600], 1, 16_000, SampleEncoding::I16);
-    expect_status(transcribe(c, chunks(AudioFormat::Unspecified, 0, &wav, 1_024)).await, Code::InvalidArgument, "format");
+    expect_status(
+        transcribe(c, chunks(AudioFormat::Unspecified, 0, &wav, 1_024)).await,
+        Code::InvalidArgument,
+        "format",
+    );
     let mut unknown = chunks(AudioFormat::Wav, 0, &wav, 1_024);
     unknown[0].format = 42;
     expect_status(transcribe(c, unknown).await, Code::InvalidArgument, "unknown audio format 42");
@@ -58,7 +62,11 @@ async fn malformed_audio_is_refused_with_the_reason() {
 
     // Silence only.
     let silence = encode_wav(&vec![0.0; 32_000], 1, 16_000, SampleEncoding::I16);
-    expect_status(transcribe(c, chunks(AudioFormat::Wav, 0, &silence, 8_192)).await, Code::InvalidArgument, "no speech");
+    expect_status(
+        transcribe(c, chunks(AudioFormat::Wav, 0, &silence, 8_192)).await,
+        Code::InvalidArgument,
+        "no speech",
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -85,13 +93,18 @@ async fn streams_that_stop_mid_way_fail_cleanly_and_block_nothing() {
 
     // The client closes the stream before the data the header declared.
     let half = &wav[..wav.len() / 2];
-    expect_status(transcribe(&mut s.client, chunks(AudioFormat::Wav, 0, half, 4_096)).await, Code::InvalidArgument, "ended early");
+    expect_status(
+        transcribe(&mut s.client, chunks(AudioFormat::Wav, 0, half, 4_096)).await,
+        Code::InvalidArgument,
+        "ended early",
+    );
 
     // The client stops sending but keeps the stream open.
     let (tx, rx) = mpsc::channel::<AudioChunk>(4);
     tx.send(chunks(AudioFormat::Wav, 0, &wav[..4_096], 4_096).remove(0)).await.unwrap();
     let started = std::time::Instant::now();
-    let stalled = tokio::time::timeout(CALL_TIMEOUT, s.client.transcribe(ReceiverStream::new(rx))).await.expect("answered");
+    let stalled =
+        tokio::time::timeout(CALL_TIMEOUT, s.client.transcribe(ReceiverStream::new(rx))).await.expect("answered");
     let status = stalled.expect_err("a stalled upload is refused");
     assert_eq!(status.code(), Code::DeadlineExceeded, "{status:?}");
     assert!(status.message().contains("stopped mid-way"), "{}", status.message());

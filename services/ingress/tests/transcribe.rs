@@ -21,7 +21,10 @@ async fn spoken_instructions_are_transcribed_closely() {
         let input_s = decode_wav(&wav).unwrap().duration_s();
         let t = transcribe(&mut served.client, chunks(AudioFormat::Wav, 0, &wav, 8 * 1024)).await.unwrap();
         let wer = word_error_rate(text, &t.text);
-        report.push_str(&format!("  {wer:.3}  {:.1} s speech  said: {text}\n              heard: {}\n", t.audio_seconds, t.text));
+        report.push_str(&format!(
+            "  {wer:.3}  {:.1} s speech  said: {text}\n              heard: {}\n",
+            t.audio_seconds, t.text
+        ));
         assert_eq!(t.model, "whisper-tiny.en");
         assert!(t.audio_seconds > 0.5 && t.audio_seconds <= input_s, "speech {} s of {input_s} s", t.audio_seconds);
         rates.push(wer);
@@ -96,8 +99,11 @@ async fn speech_longer_than_one_window_is_decoded_window_by_window() {
 fn the_default_prompt_fits_whisper_context_whole() {
     use vlnav_ingress::whisper::{DecodeOptions, MAX_PROMPT_TOKENS};
     let opts = options();
-    let mut r = vlnav_ingress::SpeechRecognizer::load(&vlnav_ingress::ModelFiles::in_dir(&opts.whisper_dir()), &candle_core::Device::Cpu)
-        .expect("load Whisper");
+    let mut r = vlnav_ingress::SpeechRecognizer::load(
+        &vlnav_ingress::ModelFiles::in_dir(&opts.whisper_dir()),
+        &candle_core::Device::Cpu,
+    )
+    .expect("load Whisper");
     // Loaded with the default prompt: COCO names and commands, not cut.
     assert!(r.prompt_len() > 150 && r.prompt_len() < MAX_PROMPT_TOKENS, "{} tokens", r.prompt_len());
     assert_eq!(opts.decode_options(), DecodeOptions::default());

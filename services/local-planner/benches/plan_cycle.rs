@@ -16,7 +16,8 @@ use vlnav_local_planner::planner::{Method, Planner, PlannerParams, Scratch};
 /// the faces of a few boxes and a wall, all within the camera's view.
 fn scene(n: usize, seed: u64) -> Vec<[f64; 3]> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let boxes = [([1.8, 0.3], [2.3, 0.9]), ([2.8, -1.4], [3.2, -0.8]), ([3.9, -2.5], [4.0, 0.2]), ([1.2, -0.9], [1.35, -0.75])];
+    let boxes =
+        [([1.8, 0.3], [2.3, 0.9]), ([2.8, -1.4], [3.2, -0.8]), ([3.9, -2.5], [4.0, 0.2]), ([1.2, -0.9], [1.35, -0.75])];
     (0..n)
         .map(|_| {
             if rng.random_bool(0.4) {

@@ -33,9 +33,15 @@ pub struct StepReply {
 }
 
 pub enum Msg {
-    Step { request: Box<StepRequest>, reply: oneshot::Sender<StepReply> },
+    Step {
+        request: Box<StepRequest>,
+        reply: oneshot::Sender<StepReply>,
+    },
     /// Replies whether the robot had state.
-    Reset { robot_id: String, reply: oneshot::Sender<bool> },
+    Reset {
+        robot_id: String,
+        reply: oneshot::Sender<bool>,
+    },
 }
 
 struct Actor {

@@ -249,13 +249,13 @@ mod tests {
         let mut b = CloudBuilder::new(CloudParams::default());
         let c = b.from_points(
             &[
-                [2.0, 0.0, 0.05], // floor
-                [2.0, 1.0, 0.12], // low bump
-                [2.0, -1.0, 0.5], // obstacle
+                [2.0, 0.0, 0.05],  // floor
+                [2.0, 1.0, 0.12],  // low bump
+                [2.0, -1.0, 0.5],  // obstacle
                 [2.0, -1.0, 0.51], // same voxel: counted once
-                [2.0, -1.0, 0.7], // same column, another voxel
-                [2.0, 2.0, 2.0],  // overhead
-                [6.0, 0.0, 0.5],  // out of range
+                [2.0, -1.0, 0.7],  // same column, another voxel
+                [2.0, 2.0, 2.0],   // overhead
+                [6.0, 0.0, 0.5],   // out of range
             ],
             &[[1.0, 0.5, 0.5]],
         );

@@ -227,9 +227,9 @@ impl RobotState {
             _ => p.nominal_period_s,
         };
         let time_went_back = self.last_stamp.is_some_and(|t| input.stamp < t);
-        let jumped = self.last_pose.is_some_and(|q| {
-            (q.position() - input.pose.position()).norm() > 0.5 + 2.0 * p.max_speed * dt
-        });
+        let jumped = self
+            .last_pose
+            .is_some_and(|q| (q.position() - input.pose.position()).norm() > 0.5 + 2.0 * p.max_speed * dt);
         if time_went_back || jumped {
             self.memory.clear();
             self.last_path_odom.clear();

@@ -44,10 +44,16 @@ fn goal_from_proto(g: Option<&pb::Goal>) -> Result<GoalSpec, LocalPlannerError> 
     let pose: Pose2 = pose_from_proto(g.pose.as_ref(), "goal.pose")?;
     if g.rotation_only {
         if !(g.yaw_tolerance.is_finite() && g.yaw_tolerance > 0.0) {
-            return Err(invalid("goal.yaw_tolerance", format!("must be a positive angle in radians for a rotation, got {}", g.yaw_tolerance)));
+            return Err(invalid(
+                "goal.yaw_tolerance",
+                format!("must be a positive angle in radians for a rotation, got {}", g.yaw_tolerance),
+            ));
         }
     } else if !(g.position_tolerance.is_finite() && g.position_tolerance > 0.0) {
-        return Err(invalid("goal.position_tolerance", format!("must be a positive distance in metres, got {}", g.position_tolerance)));
+        return Err(invalid(
+            "goal.position_tolerance",
+            format!("must be a positive distance in metres, got {}", g.position_tolerance),
+        ));
     }
     Ok(GoalSpec {
         pose,
@@ -62,9 +68,14 @@ pub fn step_request(r: pb::PlanStepRequest, depth_defaults: DepthDefaults) -> Re
     if r.robot_id.trim().is_empty() {
         return Err(invalid("robot_id", "must name the robot (e.g. \"husky-1\")"));
     }
-    let mut frame = r.frame.ok_or_else(|| invalid("frame", "is required (depth, camera, odom pose and stamp of the current frame)"))?;
+    let mut frame = r
+        .frame
+        .ok_or_else(|| invalid("frame", "is required (depth, camera, odom pose and stamp of the current frame)"))?;
     if !frame.robot_id.is_empty() && frame.robot_id != r.robot_id {
-        return Err(invalid("frame.robot_id", format!("is {:?} but the request is for {:?}", frame.robot_id, r.robot_id)));
+        return Err(invalid(
+            "frame.robot_id",
+            format!("is {:?} but the request is for {:?}", frame.robot_id, r.robot_id),
+        ));
     }
     if !frame.stamp.is_finite() {
         return Err(invalid("frame.stamp", format!("must be a finite sensor time in seconds, got {}", frame.stamp)));
@@ -74,17 +85,32 @@ pub fn step_request(r: pb::PlanStepRequest, depth_defaults: DepthDefaults) -> Re
     let pose = pose_from_proto(frame.odom.as_ref(), "frame.odom")?;
     let goal = goal_from_proto(r.goal.as_ref())?;
     if !(r.max_speed.is_finite() && r.max_speed >= 0.0) {
-        return Err(invalid("max_speed", format!("must be a finite speed ≥ 0 in m/s (0: default), got {}", r.max_speed)));
+        return Err(invalid(
+            "max_speed",
+            format!("must be a finite speed ≥ 0 in m/s (0: default), got {}", r.max_speed),
+        ));
     }
     let mut no_go = Vec::with_capacity(r.no_go_points.len());
     for (i, p) in r.no_go_points.iter().enumerate() {
         if !(p.x.is_finite() && p.y.is_finite() && p.z.is_finite()) {
-            return Err(invalid(&format!("no_go_points[{i}]"), format!("must be finite base_link coordinates, got ({}, {}, {})", p.x, p.y, p.z)));
+            return Err(invalid(
+                &format!("no_go_points[{i}]"),
+                format!("must be finite base_link coordinates, got ({}, {}, {})", p.x, p.y, p.z),
+            ));
         }
         no_go.push([p.x, p.y, p.z]);
     }
     let depth_mm = std::mem::take(&mut frame.depth.as_mut().expect("checked above").data_mm);
-    Ok(StepRequest { robot_id: r.robot_id, stamp: frame.stamp, pose, camera, depth_mm, goal, no_go, max_speed: r.max_speed })
+    Ok(StepRequest {
+        robot_id: r.robot_id,
+        stamp: frame.stamp,
+        pose,
+        camera,
+        depth_mm,
+        goal,
+        no_go,
+        max_speed: r.max_speed,
+    })
 }
 
 fn reply_to_proto(r: StepReply) -> pb::PlanStepResponse {
@@ -125,11 +151,15 @@ pub struct LocalPlanner {
 impl LocalPlannerService for LocalPlanner {
     async fn plan_step(&self, request: Request<pb::PlanStepRequest>) -> Result<Response<pb::PlanStepResponse>, Status> {
         let step = Box::new(step_request(request.into_inner(), self.depth_defaults)?);
-        let reply = self.mailbox.call(|reply| Msg::Step { request: step, reply }).await.map_err(LocalPlannerError::from)?;
+        let reply =
+            self.mailbox.call(|reply| Msg::Step { request: step, reply }).await.map_err(LocalPlannerError::from)?;
         Ok(Response::new(reply_to_proto(reply)))
     }
 
-    async fn reset_robot(&self, request: Request<pb::ResetRobotRequest>) -> Result<Response<pb::ResetRobotResponse>, Status> {
+    async fn reset_robot(
+        &self,
+        request: Request<pb::ResetRobotRequest>,
+    ) -> Result<Response<pb::ResetRobotResponse>, Status> {
         let robot_id = request.into_inner().robot_id;
         if robot_id.trim().is_empty() {
             return Err(invalid("robot_id", "must name the robot whose state to forget").into());

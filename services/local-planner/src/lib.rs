@@ -85,7 +85,11 @@ pub struct Options {
     #[arg(long = "local-planner-depth-max", env = "VLNAV_LOCAL_PLANNER_DEPTH_MAX_M", default_value_t = 10.0)]
     pub depth_max_m: f64,
     /// NO_PROGRESS when the goal distance has not dropped by 0.1 m for this long (sensor time), s.
-    #[arg(long = "local-planner-progress-window", env = "VLNAV_LOCAL_PLANNER_PROGRESS_WINDOW_S", default_value_t = 5.0)]
+    #[arg(
+        long = "local-planner-progress-window",
+        env = "VLNAV_LOCAL_PLANNER_PROGRESS_WINDOW_S",
+        default_value_t = 5.0
+    )]
     pub progress_window_s: f64,
 }
 
@@ -147,7 +151,10 @@ impl Options {
         }
         anyhow::ensure!(self.clearance_m < 1.5, "--local-planner-clearance above 1.5 m would block every path");
         anyhow::ensure!(self.depth_stride > 0, "--local-planner-depth-stride must be positive");
-        anyhow::ensure!(self.max_height_m > 0.15, "--local-planner-max-height must be above the 0.15 m obstacle height");
+        anyhow::ensure!(
+            self.max_height_m > 0.15,
+            "--local-planner-max-height must be above the 0.15 m obstacle height"
+        );
         Ok(())
     }
 
@@ -193,7 +200,10 @@ impl Options {
 
 /// Generates the path library and lookup tables, spawns the actor and
 /// returns the service, ready to serve.
-pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+pub async fn services(
+    opts: &Options,
+    server: &vlnav_runtime::ServerConfig,
+) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     opts.validate()?;
     let params = opts.planner_params();
     let planner = tokio::task::spawn_blocking(move || Planner::new(params)).await?;

@@ -179,7 +179,8 @@ impl LookupTable {
                     let sy = scale_y[i as usize];
                     // y = sy·(offset_y − voxel·j) is decreasing in j.
                     let j_lo = ((grid.offset_y - (py + dy) / sy) / grid.voxel).ceil().max(0.0) as i64;
-                    let j_hi = ((grid.offset_y - (py - dy) / sy) / grid.voxel).floor().min(grid.num_y as f64 - 1.0) as i64;
+                    let j_hi =
+                        ((grid.offset_y - (py - dy) / sy) / grid.voxel).floor().min(grid.num_y as f64 - 1.0) as i64;
                     if j_lo > j_hi {
                         continue;
                     }

@@ -202,7 +202,8 @@ impl Planner {
             s -= params.scale_step;
         }
         let half = params.default_range.max(params.default_scale * PATH_RADIUS) + 0.5;
-        let field = FieldGeometry { cell: params.distance_cell, half, n: (2.0 * half / params.distance_cell).ceil() as usize };
+        let field =
+            FieldGeometry { cell: params.distance_cell, half, n: (2.0 * half / params.distance_cell).ceil() as usize };
         let rot_cs: Vec<(f64, f64)> = params.rotations.iter().map(|a| a.sin_cos()).map(|(s, c)| (c, s)).collect();
         let levels = scales
             .iter()
@@ -238,7 +239,14 @@ impl Planner {
 
     /// Plans toward `goal` (`base_link`) at `speed_fraction` of the top speed;
     /// `course` is the bearing held so far (rad, 0 = straight ahead).
-    pub fn plan(&self, cloud: &ObstacleCloud, goal: Vector2<f64>, speed_fraction: f64, course: f64, scratch: &mut Scratch) -> Plan {
+    pub fn plan(
+        &self,
+        cloud: &ObstacleCloud,
+        goal: Vector2<f64>,
+        speed_fraction: f64,
+        course: f64,
+        scratch: &mut Scratch,
+    ) -> Plan {
         self.plan_with(cloud, goal, speed_fraction, course, scratch, Method::Table)
     }
 
@@ -257,7 +265,9 @@ impl Planner {
         let wanted = (p.default_scale * sf).max(p.min_scale);
         let mut level = self.levels.iter().position(|l| l.scale <= wanted + 1e-9).unwrap_or(self.levels.len() - 1);
         let mut range = (p.default_range * sf).max(p.min_range);
-        scratch.dist_obs.compute(&self.field, cloud.cells.iter().filter(|c| c.blocking > 0).map(|c| (c.x as f64, c.y as f64)));
+        scratch
+            .dist_obs
+            .compute(&self.field, cloud.cells.iter().filter(|c| c.blocking > 0).map(|c| (c.x as f64, c.y as f64)));
         scratch.dist_sem.compute(&self.field, cloud.cells.iter().filter(|c| c.no_go).map(|c| (c.x as f64, c.y as f64)));
         loop {
             let (selection, free) = self.evaluate(cloud, goal, course, level, range, scratch, method);
@@ -275,7 +285,15 @@ impl Planner {
         }
     }
 
-    fn blocked_sets(&self, cloud: &ObstacleCloud, goal_dist: f64, level: usize, range: f64, scratch: &mut Scratch, method: Method) {
+    fn blocked_sets(
+        &self,
+        cloud: &ObstacleCloud,
+        goal_dist: f64,
+        level: usize,
+        range: f64,
+        scratch: &mut Scratch,
+        method: Method,
+    ) {
         let n_rot = self.rot_cs.len();
         for v in [&mut scratch.once, &mut scratch.twice, &mut scratch.no_go, &mut scratch.low] {
             v.clear();

@@ -100,7 +100,11 @@ fn drive_with(params: FollowParams, world: &World, start: Pose2, goal: GoalSpec,
         let reached = out.status == StepStatus::Reached;
         // Unicycle over one frame period.
         let th = pose.theta + out.angular * DT / 2.0;
-        pose = Pose2::new(pose.x + out.linear * DT * th.cos(), pose.y + out.linear * DT * th.sin(), pose.theta + out.angular * DT);
+        pose = Pose2::new(
+            pose.x + out.linear * DT * th.cos(),
+            pose.y + out.linear * DT * th.sin(),
+            pose.theta + out.angular * DT,
+        );
         run.outputs.push(out);
         run.poses.push(pose);
         if reached {
@@ -121,12 +125,18 @@ fn obstacle_dead_ahead_is_passed_around() {
     let mut world = World::default();
     world.add_box(2.7, -0.3, 3.3, 0.3, 0.6);
     let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(6.0, 0.0, 0.3), 200);
-    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "did not reach the goal in {} frames", run.outputs.len());
+    assert_eq!(
+        run.outputs.last().unwrap().status,
+        StepStatus::Reached,
+        "did not reach the goal in {} frames",
+        run.outputs.len()
+    );
     let closest = run.poses.iter().map(|p| distance_to_rect(p, 2.7, -0.3, 3.3, 0.3)).fold(f64::INFINITY, f64::min);
     assert!(closest > HALF_WIDTH + 0.05, "robot centre came within {closest:.3} m of the box");
     let widest = run.poses.iter().map(|p| p.y.abs()).fold(0.0, f64::max);
     assert!(widest > 0.6, "never left the straight line (max |y| {widest:.2})");
-    assert!(run.outputs.iter().any(|o| o.status == StepStatus::Moving && o.selection.as_ref().is_some_and(|s| s.path != 3 * 49 + 24 || s.rotation != 4)));
+    assert!(run.outputs.iter().any(|o| o.status == StepStatus::Moving
+        && o.selection.as_ref().is_some_and(|s| s.path != 3 * 49 + 24 || s.rotation != 4)));
 }
 
 #[test]
@@ -134,7 +144,12 @@ fn red_floor_zone_is_passed_around_never_crossed() {
     let mut world = World::default();
     world.add_no_go_zone(2.5, -0.7, 3.5, 0.7);
     let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(6.0, 0.0, 0.3), 200);
-    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "did not reach the goal in {} frames", run.outputs.len());
+    assert_eq!(
+        run.outputs.last().unwrap().status,
+        StepStatus::Reached,
+        "did not reach the goal in {} frames",
+        run.outputs.len()
+    );
     let closest = run.poses.iter().map(|p| distance_to_rect(p, 2.5, -0.7, 3.5, 0.7)).fold(f64::INFINITY, f64::min);
     // The footprint (half-width 0.335 m) never overlaps the zone.
     assert!(closest > HALF_WIDTH, "robot centre came within {closest:.3} m of the zone");
@@ -148,7 +163,12 @@ fn box_on_one_side_and_zone_on_the_other_are_both_respected() {
     world.add_box(2.0, 0.3, 2.4, 1.5, 0.6);
     world.add_no_go_zone(3.0, -1.2, 3.8, 0.2);
     let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(6.0, 0.0, 0.3), 200);
-    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "did not reach the goal in {} frames", run.outputs.len());
+    assert_eq!(
+        run.outputs.last().unwrap().status,
+        StepStatus::Reached,
+        "did not reach the goal in {} frames",
+        run.outputs.len()
+    );
     let zone = run.poses.iter().map(|p| distance_to_rect(p, 3.0, -1.2, 3.8, 0.2)).fold(f64::INFINITY, f64::min);
     let obstacle = run.poses.iter().map(|p| distance_to_rect(p, 2.0, 0.3, 2.4, 1.5)).fold(f64::INFINITY, f64::min);
     assert!(zone > HALF_WIDTH, "footprint entered the zone: centre {zone:.3} m from it");
@@ -209,7 +229,8 @@ fn a_detour_that_points_away_from_the_goal_is_not_undone_by_rotating_back() {
     assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached, "{:?}", run.poses.last());
     // Rotating back toward the goal as soon as it is 1 rad off (the initial
     // alignment rule applied all the way) turns back and forth at the wall.
-    let naive = FollowParams { rerotate_threshold: FollowParams::default().rotate_threshold, ..FollowParams::default() };
+    let naive =
+        FollowParams { rerotate_threshold: FollowParams::default().rotate_threshold, ..FollowParams::default() };
     let turning_back = drive_with(naive, &world, start, goal, 400);
     assert!(
         turning_back.outputs.len() > run.outputs.len(),
@@ -234,7 +255,8 @@ fn a_goal_one_metre_before_a_landmark_is_approached_straight_on() {
 #[test]
 fn rotation_only_goal_turns_until_within_yaw_tolerance() {
     let world = World::default();
-    let goal = GoalSpec { pose: Pose2::new(0.0, 0.0, -1.2), position_tolerance: 0.5, yaw_tolerance: 0.2, rotation_only: true };
+    let goal =
+        GoalSpec { pose: Pose2::new(0.0, 0.0, -1.2), position_tolerance: 0.5, yaw_tolerance: 0.2, rotation_only: true };
     let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal, 50);
     assert!(run.outputs[0].angular < 0.0);
     assert_eq!(run.outputs[0].status, StepStatus::Rotating);
@@ -255,7 +277,11 @@ fn stuck_robot_reports_no_progress_after_five_seconds_of_sensor_time() {
     let mut statuses = vec![];
     // Wheels spinning in mud: the pose never changes; frames at 10 Hz.
     for i in 0..80 {
-        let out = state.step(planner(), &params, StepInput { stamp: 50.0 + i as f64 * 0.1, pose, goal, cloud: &cloud, max_speed: 0.0, view: VIEW });
+        let out = state.step(
+            planner(),
+            &params,
+            StepInput { stamp: 50.0 + i as f64 * 0.1, pose, goal, cloud: &cloud, max_speed: 0.0, view: VIEW },
+        );
         statuses.push(out.status);
     }
     let first = statuses.iter().position(|s| *s == StepStatus::NoProgress).expect("no NO_PROGRESS reported");
@@ -274,7 +300,15 @@ fn speed_ramps_with_frame_stamps() {
     let goal = goal_at(8.0, 0.0, 0.3);
     let pose = Pose2::new(0.0, 0.0, 0.0);
     let speeds: Vec<f64> = (0..8)
-        .map(|i| state.step(planner(), &params, StepInput { stamp: i as f64 * 0.25, pose, goal, cloud: &cloud, max_speed: 0.6, view: VIEW }).linear)
+        .map(|i| {
+            state
+                .step(
+                    planner(),
+                    &params,
+                    StepInput { stamp: i as f64 * 0.25, pose, goal, cloud: &cloud, max_speed: 0.6, view: VIEW },
+                )
+                .linear
+        })
         .collect();
     // First frame: the nominal 0.2 s period; then 0.25 s per frame at 1 m/s², capped at 0.6.
     let expected = [0.2, 0.45, 0.6, 0.6, 0.6, 0.6, 0.6, 0.6];

@@ -83,7 +83,12 @@ fn frame(boxes: &Boxes, odom: pb::Pose2D, stamp: f64) -> pb::RgbdFrame {
                 cx: cam.intrinsics.cx,
                 cy: cam.intrinsics.cy,
             }),
-            mount: Some(pb::CameraMount { translation: Some(pb::Point3 { x: 0.3, y: 0.0, z: 0.5 }), roll: 0.0, pitch: 0.0, yaw: 0.0 }),
+            mount: Some(pb::CameraMount {
+                translation: Some(pb::Point3 { x: 0.3, y: 0.0, z: 0.5 }),
+                roll: 0.0,
+                pitch: 0.0,
+                yaw: 0.0,
+            }),
             depth_min_m: 0.3,
             depth_max_m: 10.0,
         }),
@@ -96,7 +101,12 @@ fn frame(boxes: &Boxes, odom: pb::Pose2D, stamp: f64) -> pb::RgbdFrame {
 }
 
 fn goal(x: f64, y: f64) -> pb::Goal {
-    pb::Goal { pose: Some(pb::Pose2D { x, y, theta: 0.0 }), position_tolerance: 0.3, yaw_tolerance: 0.2, rotation_only: false }
+    pb::Goal {
+        pose: Some(pb::Pose2D { x, y, theta: 0.0 }),
+        position_tolerance: 0.3,
+        yaw_tolerance: 0.2,
+        rotation_only: false,
+    }
 }
 
 fn request(robot: &str, f: pb::RgbdFrame, g: pb::Goal) -> pb::PlanStepRequest {
@@ -110,7 +120,12 @@ fn at(x: f64, y: f64, theta: f64) -> pb::Pose2D {
 #[tokio::test]
 async fn open_floor_goes_straight_for_the_goal() {
     let mut s = start().await;
-    let r = s.client.plan_step(request("husky-1", frame(&vec![], at(0.0, 0.0, 0.0), 1.0), goal(5.0, 0.0))).await.unwrap().into_inner();
+    let r = s
+        .client
+        .plan_step(request("husky-1", frame(&vec![], at(0.0, 0.0, 0.0), 1.0), goal(5.0, 0.0)))
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!(r.status(), pb::LocalPlanStatus::Moving);
     assert_eq!((r.path_id, r.rotation_index), (STRAIGHT_PATH, 4));
     assert_eq!(r.obstacle_points, 0, "the floor must be removed as ground");
@@ -124,14 +139,20 @@ async fn open_floor_goes_straight_for_the_goal() {
 async fn box_in_the_depth_frame_turns_the_path_aside() {
     let mut s = start().await;
     let boxes = vec![([2.0, -0.4, 0.0], [2.6, 0.4, 0.8])];
-    let r = s.client.plan_step(request("husky-1", frame(&boxes, at(0.0, 0.0, 0.0), 1.0), goal(5.0, 0.0))).await.unwrap().into_inner();
+    let r = s
+        .client
+        .plan_step(request("husky-1", frame(&boxes, at(0.0, 0.0, 0.0), 1.0), goal(5.0, 0.0)))
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!(r.status(), pb::LocalPlanStatus::Moving);
     assert!(r.obstacle_points > 0);
     assert!(r.free_paths < 9 * 343);
     assert!(r.path_id >= 0 && (r.path_id, r.rotation_index) != (STRAIGHT_PATH, 4));
     // The same obstacle as no-go points: also avoided, and costlier to pass close.
-    let no_go: Vec<pb::Point3> =
-        (0..9).flat_map(|i| (0..9).map(move |j| pb::Point3 { x: 2.0 + 0.075 * i as f64, y: -0.4 + 0.1 * j as f64, z: 0.5 })).collect();
+    let no_go: Vec<pb::Point3> = (0..9)
+        .flat_map(|i| (0..9).map(move |j| pb::Point3 { x: 2.0 + 0.075 * i as f64, y: -0.4 + 0.1 * j as f64, z: 0.5 }))
+        .collect();
     let mut f = frame(&vec![], at(0.0, 0.0, 0.0), 1.0);
     f.robot_id = "husky-2".into();
     let mut req = request("husky-2", f, goal(5.0, 0.0));
@@ -146,14 +167,30 @@ async fn box_in_the_depth_frame_turns_the_path_aside() {
 async fn dead_end_is_blocked_and_the_robot_stops() {
     let mut s = start().await;
     // A dead end 1.0 m wide (walls in odom = base_link at the origin pose).
-    let walls = vec![([1.0, -0.6, 0.0], [1.1, 0.6, 1.0]), ([-1.0, 0.5, 0.0], [1.1, 0.6, 1.0]), ([-1.0, -0.6, 0.0], [1.1, -0.5, 1.0])];
-    let shifted = |dx: f64| -> Boxes { walls.iter().map(|(lo, hi)| ([lo[0] - dx, lo[1], lo[2]], [hi[0] - dx, hi[1], hi[2]])).collect() };
+    let walls = vec![
+        ([1.0, -0.6, 0.0], [1.1, 0.6, 1.0]),
+        ([-1.0, 0.5, 0.0], [1.1, 0.6, 1.0]),
+        ([-1.0, -0.6, 0.0], [1.1, -0.5, 1.0]),
+    ];
+    let shifted = |dx: f64| -> Boxes {
+        walls.iter().map(|(lo, hi)| ([lo[0] - dx, lo[1], lo[2]], [hi[0] - dx, hi[1], hi[2]])).collect()
+    };
     // From 1.5 m back the side walls are in view (and the open floor before the entrance).
-    let r = s.client.plan_step(request("husky-1", frame(&shifted(-1.5), at(-1.5, 0.0, 0.0), 1.0), goal(5.0, 0.0))).await.unwrap().into_inner();
+    let r = s
+        .client
+        .plan_step(request("husky-1", frame(&shifted(-1.5), at(-1.5, 0.0, 0.0), 1.0), goal(5.0, 0.0)))
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!(r.status(), pb::LocalPlanStatus::Moving);
     assert!(r.obstacle_points > 40, "{} cells", r.obstacle_points);
     // Inside: the camera sees only the end wall; the side walls come from memory.
-    let r = s.client.plan_step(request("husky-1", frame(&shifted(0.0), at(0.0, 0.0, 0.0), 2.0), goal(5.0, 0.0))).await.unwrap().into_inner();
+    let r = s
+        .client
+        .plan_step(request("husky-1", frame(&shifted(0.0), at(0.0, 0.0, 0.0), 2.0), goal(5.0, 0.0)))
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!(r.status(), pb::LocalPlanStatus::Blocked);
     let cmd = r.cmd.unwrap();
     assert_eq!((cmd.linear, cmd.angular), (0.0, 0.0));
@@ -169,13 +206,23 @@ async fn dead_end_is_blocked_and_the_robot_stops() {
 #[tokio::test]
 async fn goal_behind_rotates_and_goal_here_is_reached() {
     let mut s = start().await;
-    let r = s.client.plan_step(request("husky-1", frame(&vec![], at(1.0, 1.0, 0.0), 1.0), goal(-2.0, 0.5))).await.unwrap().into_inner();
+    let r = s
+        .client
+        .plan_step(request("husky-1", frame(&vec![], at(1.0, 1.0, 0.0), 1.0), goal(-2.0, 0.5)))
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!(r.status(), pb::LocalPlanStatus::Rotating);
     let cmd = r.cmd.unwrap();
     assert_eq!(cmd.linear, 0.0);
     assert!(cmd.angular < 0.0, "goal behind on the right: turn right, got {}", cmd.angular);
     assert!(r.heading_error.abs() > 1.0);
-    let r = s.client.plan_step(request("husky-1", frame(&vec![], at(1.0, 1.0, 0.0), 1.2), goal(1.1, 1.1))).await.unwrap().into_inner();
+    let r = s
+        .client
+        .plan_step(request("husky-1", frame(&vec![], at(1.0, 1.0, 0.0), 1.2), goal(1.1, 1.1)))
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!(r.status(), pb::LocalPlanStatus::Reached);
     s.client.reset_robot(pb::ResetRobotRequest { robot_id: "husky-1".into() }).await.unwrap();
 }

@@ -36,7 +36,9 @@ impl SpmTokenizer {
     pub fn from_gguf(ct: &gguf_file::Content) -> Result<SpmTokenizer, String> {
         let md = |k: &str| ct.metadata.get(k).ok_or(format!("GGUF metadata lacks {k}"));
         let tokens = match md("tokenizer.ggml.tokens")? {
-            gguf_file::Value::Array(a) => a.iter().map(|v| v.to_string().cloned().map_err(|e| e.to_string())).collect::<Result<Vec<_>, _>>()?,
+            gguf_file::Value::Array(a) => {
+                a.iter().map(|v| v.to_string().cloned().map_err(|e| e.to_string())).collect::<Result<Vec<_>, _>>()?
+            }
             _ => return Err("tokenizer.ggml.tokens is not an array".into()),
         };
         let scores: Vec<f32> = match md("tokenizer.ggml.scores") {
@@ -66,7 +68,13 @@ impl SpmTokenizer {
             }
             ids.entry(t.clone()).or_insert((i as u32, scores.get(i).copied().unwrap_or(0.0)));
         }
-        Ok(SpmTokenizer { bos: id_of("tokenizer.ggml.bos_token_id", 2), eos: id_of("tokenizer.ggml.eos_token_id", 1), pieces: tokens, ids, byte_ids })
+        Ok(SpmTokenizer {
+            bos: id_of("tokenizer.ggml.bos_token_id", 2),
+            eos: id_of("tokenizer.ggml.eos_token_id", 1),
+            pieces: tokens,
+            ids,
+            byte_ids,
+        })
     }
 
     /// Byte-pair merges by score within each whitespace-led word.
@@ -115,7 +123,9 @@ impl SpmTokenizer {
         let mut bytes = Vec::new();
         for &id in ids {
             let Some(p) = self.pieces.get(id as usize) else { continue };
-            if let Some(b) = p.strip_prefix("<0x").and_then(|h| h.strip_suffix('>')).and_then(|h| u8::from_str_radix(h, 16).ok()) {
+            if let Some(b) =
+                p.strip_prefix("<0x").and_then(|h| h.strip_suffix('>')).and_then(|h| u8::from_str_radix(h, 16).ok())
+            {
                 bytes.push(b);
             } else if !(p.starts_with('<') && p.ends_with('>') && p.len() > 2) {
                 bytes.extend_from_slice(p.replace('\u{2581}', " ").as_bytes());
@@ -202,7 +212,12 @@ impl GemmaChat {
         let mut out_ids = Vec::new();
         for _ in 0..self.max_new_tokens {
             let v: Vec<f32> = logits.to_vec1().map_err(err)?;
-            let next = v.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i as u32).unwrap_or(self.tokenizer.eos);
+            let next = v
+                .iter()
+                .enumerate()
+                .max_by(|a, b| a.1.total_cmp(b.1))
+                .map(|(i, _)| i as u32)
+                .unwrap_or(self.tokenizer.eos);
             if next == self.tokenizer.eos {
                 break;
             }

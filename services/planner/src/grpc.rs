@@ -105,10 +105,8 @@ fn response(p: Planned) -> pb::PlanResponse {
 impl pb::planner_service_server::PlannerService for PlannerGrpc {
     async fn plan(&self, request: Request<pb::PlanRequest>) -> Result<Response<pb::PlanResponse>, Status> {
         let r = request.into_inner();
-        let planned = self
-            .mailbox
-            .call(|reply| Msg::Plan { instruction: r.instruction, backend: r.backend, reply })
-            .await??;
+        let planned =
+            self.mailbox.call(|reply| Msg::Plan { instruction: r.instruction, backend: r.backend, reply }).await??;
         Ok(Response::new(response(planned)))
     }
 
@@ -132,13 +130,19 @@ impl pb::planner_service_server::PlannerService for PlannerGrpc {
         Ok(Response::new(response(planned)))
     }
 
-    async fn validate_plan(&self, request: Request<pb::ValidatePlanRequest>) -> Result<Response<pb::ValidatePlanResponse>, Status> {
+    async fn validate_plan(
+        &self,
+        request: Request<pb::ValidatePlanRequest>,
+    ) -> Result<Response<pb::ValidatePlanResponse>, Status> {
         let r = request.into_inner();
         if r.plan_json.trim().is_empty() {
             return Err(Status::invalid_argument("plan_json: empty; send a JSON array of steps"));
         }
         if r.plan_json.len() > 256 * 1024 {
-            return Err(Status::invalid_argument(format!("plan_json: {} bytes; at most 262144 accepted", r.plan_json.len())));
+            return Err(Status::invalid_argument(format!(
+                "plan_json: {} bytes; at most 262144 accepted",
+                r.plan_json.len()
+            )));
         }
         let out = match self.validator.validate_text(&r.plan_json) {
             Ok(v) => pb::ValidatePlanResponse { valid: true, plan: Some(plan_to_proto(&v.plan)), errors: Vec::new() },

@@ -101,11 +101,13 @@ struct Token {
 }
 
 /// Titles before a name; the spelled-out forms are what speech recognition writes.
-const HONORIFICS: &[&str] =
-    &["mr.", "mrs.", "ms.", "dr.", "mr", "mrs", "ms", "dr", "miss", "sir", "madam", "prof.", "prof", "mister", "missus"];
+const HONORIFICS: &[&str] = &[
+    "mr.", "mrs.", "ms.", "dr.", "mr", "mrs", "ms", "dr", "miss", "sir", "madam", "prof.", "prof", "mister", "missus",
+];
 
 fn tokenize(text: &str) -> Vec<Token> {
-    let text = text.replace(['\u{2019}', '\u{2018}'], "'").replace(['\u{201c}', '\u{201d}'], "\"").replace('°', " degrees ");
+    let text =
+        text.replace(['\u{2019}', '\u{2018}'], "'").replace(['\u{201c}', '\u{201d}'], "\"").replace('°', " degrees ");
     let mut out = Vec::new();
     let mut paren: Option<String> = None;
     for raw in text.split_whitespace() {
@@ -146,7 +148,9 @@ fn push_word(out: &mut Vec<Token>, raw: &str) {
     }
     let mut trailing = Vec::new();
     while let Some(c) = w.chars().last() {
-        if matches!(c, ',' | ';' | '!' | '?' | ':' | '"' | '\'' | ')') || (c == '.' && !HONORIFICS.contains(&w.as_str())) {
+        if matches!(c, ',' | ';' | '!' | '?' | ':' | '"' | '\'' | ')')
+            || (c == '.' && !HONORIFICS.contains(&w.as_str()))
+        {
             w.pop();
             if matches!(c, ',' | ';' | '!' | '?' | ':' | '.') {
                 trailing.push(c.to_string());
@@ -187,10 +191,57 @@ fn split_number_unit(out: &mut Vec<Token>, w: &str, capital: bool) {
 
 /// Words that carry no meaning for the plan.
 const FILLER: &[&str] = &[
-    "buddy", "please", "hi", "hello", "hey", "ok", "okay", "now", "kindly", "robot", "husky", "thanks", "thank",
-    "then", "finally", "and", "so", "also", "first", "firstly", "next", "afterwards", "after", "that", "well",
-    "alright", "just", "could", "can", "would", "will", "you", "i", "want", "need", "to", "lastly", "at", "last",
-    "the", "a", "an", "there", "dear", "good", "great", "immediately", "quickly", "slowly", "carefully", "fine",
+    "buddy",
+    "please",
+    "hi",
+    "hello",
+    "hey",
+    "ok",
+    "okay",
+    "now",
+    "kindly",
+    "robot",
+    "husky",
+    "thanks",
+    "thank",
+    "then",
+    "finally",
+    "and",
+    "so",
+    "also",
+    "first",
+    "firstly",
+    "next",
+    "afterwards",
+    "after",
+    "that",
+    "well",
+    "alright",
+    "just",
+    "could",
+    "can",
+    "would",
+    "will",
+    "you",
+    "i",
+    "want",
+    "need",
+    "to",
+    "lastly",
+    "at",
+    "last",
+    "the",
+    "a",
+    "an",
+    "there",
+    "dear",
+    "good",
+    "great",
+    "immediately",
+    "quickly",
+    "slowly",
+    "carefully",
+    "fine",
 ];
 
 /// Verbs that start a new clause after "and".
@@ -207,9 +258,10 @@ fn clauses(tokens: &[Token]) -> Vec<Vec<Token>> {
     while i < tokens.len() {
         let t = &tokens[i];
         let next = tokens.get(i + 1).map(|t| t.w.as_str());
-        let boundary = matches!(t.w.as_str(), "," | "." | ";" | "!" | "?" | ":" | "then" | "finally" | "afterwards" | "lastly")
-            || (t.w == "after" && next == Some("that"))
-            || (t.w == "and" && next.is_some_and(|n| CLAUSE_VERBS.contains(&n)));
+        let boundary =
+            matches!(t.w.as_str(), "," | "." | ";" | "!" | "?" | ":" | "then" | "finally" | "afterwards" | "lastly")
+                || (t.w == "after" && next == Some("that"))
+                || (t.w == "and" && next.is_some_and(|n| CLAUSE_VERBS.contains(&n)));
         if boundary {
             if t.w == "after" {
                 i += 1;
@@ -239,14 +291,33 @@ fn clauses(tokens: &[Token]) -> Vec<Vec<Token>> {
 }
 
 /// Words of a side phrase that is not a clause by itself ("on your left").
-const SIDE_PHRASE_WORDS: &[&str] = &["on", "in", "to", "at", "your", "the", "my", "left", "right", "hand", "side", "left-hand", "right-hand"];
+const SIDE_PHRASE_WORDS: &[&str] =
+    &["on", "in", "to", "at", "your", "the", "my", "left", "right", "hand", "side", "left-hand", "right-hand"];
 
 // ---- numbers and units ------------------------------------------------------
 
 fn word_number(w: &str) -> Option<f64> {
     const SMALL: [&str; 20] = [
-        "zero", "one", "two", "three", "four", "five", "six", "seven", "eight", "nine", "ten", "eleven", "twelve",
-        "thirteen", "fourteen", "fifteen", "sixteen", "seventeen", "eighteen", "nineteen",
+        "zero",
+        "one",
+        "two",
+        "three",
+        "four",
+        "five",
+        "six",
+        "seven",
+        "eight",
+        "nine",
+        "ten",
+        "eleven",
+        "twelve",
+        "thirteen",
+        "fourteen",
+        "fifteen",
+        "sixteen",
+        "seventeen",
+        "eighteen",
+        "nineteen",
     ];
     const TENS: [&str; 8] = ["twenty", "thirty", "forty", "fifty", "sixty", "seventy", "eighty", "ninety"];
     if let Some(i) = SMALL.iter().position(|s| *s == w) {
@@ -411,16 +482,33 @@ fn quantities(t: &[Token]) -> Quantities {
 #[derive(Clone, Debug, PartialEq)]
 enum Directive {
     /// Egocentric: turn `yaw`, then drive `dist` metres.
-    Move { yaw: f64, dist: f64, desc: String },
+    Move {
+        yaw: f64,
+        dist: f64,
+        desc: String,
+    },
     /// Allocentric: go to a landmark. `turn_after` is a turn made there
     /// ("turn right at the statue").
-    Find { phrase: String, capital: bool, d_s: Option<f64>, turn_after: Option<f64> },
-    Follow { phrase: String, capital: bool, d_s: Option<f64>, duration_s: Option<f64> },
+    Find {
+        phrase: String,
+        capital: bool,
+        d_s: Option<f64>,
+        turn_after: Option<f64>,
+    },
+    Follow {
+        phrase: String,
+        capital: bool,
+        d_s: Option<f64>,
+        duration_s: Option<f64>,
+    },
     Return,
     /// A clause the parser does not understand.
     Unknown(String),
     /// A clause that needs a question (e.g. a turn without a side).
-    Ask { question: String, reason: String },
+    Ask {
+        question: String,
+        reason: String,
+    },
 }
 
 fn words(t: &[Token]) -> Vec<&str> {
@@ -437,7 +525,9 @@ fn has_seq(ws: &[&str], seq: &[&str]) -> Option<usize> {
 
 /// Turn side from the clause: +1 left, -1 right, 0 none.
 fn side(ws: &[&str]) -> i8 {
-    let l = ws.iter().position(|w| matches!(*w, "left" | "counterclockwise" | "anticlockwise" | "counter-clockwise" | "anti-clockwise"));
+    let l = ws.iter().position(|w| {
+        matches!(*w, "left" | "counterclockwise" | "anticlockwise" | "counter-clockwise" | "anti-clockwise")
+    });
     let r = ws.iter().position(|w| matches!(*w, "right" | "clockwise"));
     match (l, r) {
         (Some(a), Some(b)) => {
@@ -455,31 +545,91 @@ fn side(ws: &[&str]) -> i8 {
 
 const TURN_WORDS: &[&str] = &["turn", "rotate", "spin", "face", "bear", "veer", "u-turn", "uturn", "pivot"];
 const DRIVE_WORDS: &[&str] = &[
-    "move", "go", "drive", "walk", "head", "proceed", "advance", "continue", "keep", "travel", "roll", "forward",
-    "forwards", "ahead", "straight", "back", "backward", "backwards", "reverse", "come",
+    "move",
+    "go",
+    "drive",
+    "walk",
+    "head",
+    "proceed",
+    "advance",
+    "continue",
+    "keep",
+    "travel",
+    "roll",
+    "forward",
+    "forwards",
+    "ahead",
+    "straight",
+    "back",
+    "backward",
+    "backwards",
+    "reverse",
+    "come",
 ];
 
 /// FIND phrases: the target starts after the matched words.
 const FIND_CUES: &[&[&str]] = &[
-    &["look", "for"], &["search", "for"], &["find"], &["locate"], &["go", "to"], &["go", "towards"], &["go", "toward"],
-    &["go", "at"], &["go", "near"], &["go", "by"], &["head", "to"], &["head", "towards"], &["head", "toward"],
-    &["walk", "to"], &["walk", "towards"], &["drive", "to"], &["drive", "towards"], &["move", "to"],
-    &["move", "towards"], &["move", "toward"], &["navigate", "to"], &["navigate", "towards"], &["proceed", "to"],
-    &["proceed", "towards"], &["get", "to"], &["come", "to"], &["reach"], &["approach"], &["visit"], &["meet"],
-    &["greet"], &["go", "up", "to"], &["go", "over", "to"], &["until", "you", "see"], &["until", "you", "reach"],
-    &["may", "see"], &["will", "see"], &["can", "see"], &["might", "see"], &["should", "see"], &["you", "see"],
-    &["there", "is"], &["there's"], &["you'll", "see"], &["you'll", "find"], &["will", "find"], &["spot"],
+    &["look", "for"],
+    &["search", "for"],
+    &["find"],
+    &["locate"],
+    &["go", "to"],
+    &["go", "towards"],
+    &["go", "toward"],
+    &["go", "at"],
+    &["go", "near"],
+    &["go", "by"],
+    &["head", "to"],
+    &["head", "towards"],
+    &["head", "toward"],
+    &["walk", "to"],
+    &["walk", "towards"],
+    &["drive", "to"],
+    &["drive", "towards"],
+    &["move", "to"],
+    &["move", "towards"],
+    &["move", "toward"],
+    &["navigate", "to"],
+    &["navigate", "towards"],
+    &["proceed", "to"],
+    &["proceed", "towards"],
+    &["get", "to"],
+    &["come", "to"],
+    &["reach"],
+    &["approach"],
+    &["visit"],
+    &["meet"],
+    &["greet"],
+    &["go", "up", "to"],
+    &["go", "over", "to"],
+    &["until", "you", "see"],
+    &["until", "you", "reach"],
+    &["may", "see"],
+    &["will", "see"],
+    &["can", "see"],
+    &["might", "see"],
+    &["should", "see"],
+    &["you", "see"],
+    &["there", "is"],
+    &["there's"],
+    &["you'll", "see"],
+    &["you'll", "find"],
+    &["will", "find"],
+    &["spot"],
 ];
 /// Prepositions after "stop" / "park" / "wait" that introduce the landmark.
-const STOP_PREPS: &[&str] = &["near", "at", "by", "beside", "next", "in", "before", "behind", "close", "from", "of", "to", "nearby"];
+const STOP_PREPS: &[&str] =
+    &["near", "at", "by", "beside", "next", "in", "before", "behind", "close", "from", "of", "to", "nearby"];
 /// Words that end a target phrase.
 const PHRASE_END: &[&str] = &[
     "to", "and", "which", "that", "who", "so", "then", "until", "for", "from", "with", "on", "at", "near", "by",
-    "beside", "behind", "before", "after", "in", "into", "when", "while", "if", "follow", "followed", "follows", "it", "there", "please",
-    "is", "are", "was", "standing", "stands", "sitting", "sits", "lies", "lying", "located", "placed", "kept",
+    "beside", "behind", "before", "after", "in", "into", "when", "while", "if", "follow", "followed", "follows", "it",
+    "there", "please", "is", "are", "was", "standing", "stands", "sitting", "sits", "lies", "lying", "located",
+    "placed", "kept",
 ];
 const PARTICIPLES: &[&str] = &["standing", "sitting", "lying", "placed", "kept", "located"];
-const DETERMINERS: &[&str] = &["the", "a", "an", "some", "this", "that", "my", "your", "our", "his", "her", "their", "any", "one", "its"];
+const DETERMINERS: &[&str] =
+    &["the", "a", "an", "some", "this", "that", "my", "your", "our", "his", "her", "their", "any", "one", "its"];
 
 /// The target phrase starting at `start`: determiners dropped, cut at the
 /// first word that ends a noun phrase; "spot where X is" → X.
@@ -541,7 +691,9 @@ fn turn_magnitude(ws: &[&str], q: &Quantities) -> Option<f64> {
     if ws.iter().any(|w| matches!(*w, "around" | "u-turn" | "uturn")) || has_seq(ws, &["turn", "back"]).is_some() {
         return Some(HALF_TURN);
     }
-    if ws.iter().any(|w| matches!(*w, "slightly" | "slight" | "bear" | "veer")) || has_seq(ws, &["a", "little", "to", "the"]).is_some() {
+    if ws.iter().any(|w| matches!(*w, "slightly" | "slight" | "bear" | "veer"))
+        || has_seq(ws, &["a", "little", "to", "the"]).is_some()
+    {
         return Some(SLIGHT_TURN_RAD);
     }
     if has(ws, "half") && side(ws) != 0 {
@@ -602,9 +754,15 @@ fn resolve(t: &[Token]) -> Vec<Directive> {
     // FOLLOW: "follow the person for 30 seconds"; "you may see X … follow it" is a FIND of X.
     if let Some(i) = ws.iter().position(|w| *w == "follow") {
         let (phrase, capital) = phrase_from(t, i + 1);
-        let pronoun = phrase.is_empty() || matches!(ws.get(i + 1), Some(&"it") | Some(&"that") | Some(&"them") | Some(&"him") | Some(&"her"));
+        let pronoun = phrase.is_empty()
+            || matches!(ws.get(i + 1), Some(&"it") | Some(&"that") | Some(&"them") | Some(&"him") | Some(&"her"));
         if !pronoun {
-            return vec![Directive::Follow { phrase, capital, d_s: stop_distance(t, &q), duration_s: q.durations.first().copied() }];
+            return vec![Directive::Follow {
+                phrase,
+                capital,
+                d_s: stop_distance(t, &q),
+                duration_s: q.durations.first().copied(),
+            }];
         }
         if !FIND_CUES.iter().any(|c| has_seq(&ws, c).is_some()) {
             return vec![Directive::Ask {
@@ -630,9 +788,7 @@ fn resolve(t: &[Token]) -> Vec<Directive> {
 
     // "turn right at the statue": go to the landmark, then turn there.
     let turning = ws.iter().any(|w| TURN_WORDS.contains(w)) || has_seq(&ws, &["take", "a"]).is_some() && side(&ws) != 0;
-    if turning
-        && let Some(at) = ws.iter().position(|w| *w == "at")
-    {
+    if turning && let Some(at) = ws.iter().position(|w| *w == "at") {
         let (phrase, capital) = phrase_from(t, at + 1);
         if !phrase.is_empty() && !matches!(phrase.as_str(), "left" | "right") {
             let mag = turn_magnitude(&ws, &q).unwrap_or(RIGHT_ANGLE);
@@ -653,7 +809,8 @@ fn resolve(t: &[Token]) -> Vec<Directive> {
     }
     if let Some((_, start)) = best {
         let next = ws.get(start).copied().unwrap_or("");
-        let directional = matches!(next, "left" | "right" | "the") && matches!(ws.get(start + 1).copied().unwrap_or(next), "left" | "right");
+        let directional = matches!(next, "left" | "right" | "the")
+            && matches!(ws.get(start + 1).copied().unwrap_or(next), "left" | "right");
         if !directional && !matches!(next, "left" | "right") {
             let (phrase, capital) = phrase_from(t, start);
             if !phrase.is_empty() && length_unit(&phrase).is_none() {
@@ -664,7 +821,8 @@ fn resolve(t: &[Token]) -> Vec<Directive> {
 
     // Egocentric: turns and drives.
     let drives = ws.iter().any(|w| DRIVE_WORDS.contains(w));
-    let turn_cue = ws.iter().any(|w| TURN_WORDS.contains(w)) || (has(&ws, "take") || has(&ws, "make")) && side(&ws) != 0;
+    let turn_cue =
+        ws.iter().any(|w| TURN_WORDS.contains(w)) || (has(&ws, "take") || has(&ws, "make")) && side(&ws) != 0;
     if turn_cue || drives || !q.lengths.is_empty() {
         let s = side(&ws);
         let backwards = ws.iter().any(|w| matches!(*w, "back" | "backward" | "backwards" | "reverse")) && !turn_cue;
@@ -677,7 +835,24 @@ fn resolve(t: &[Token]) -> Vec<Directive> {
         }
         let vague_far = ws.iter().any(|w| matches!(*w, "far")) || has_seq(&ws, &["long", "way"]).is_some();
         // A drive word without a distance: "move a little ahead", "go straight".
-        let pure_turn = turn_cue && !ws.iter().any(|w| matches!(*w, "move" | "go" | "drive" | "walk" | "proceed" | "advance" | "ahead" | "forward" | "forwards" | "straight" | "continue" | "keep"));
+        let pure_turn = turn_cue
+            && !ws.iter().any(|w| {
+                matches!(
+                    *w,
+                    "move"
+                        | "go"
+                        | "drive"
+                        | "walk"
+                        | "proceed"
+                        | "advance"
+                        | "ahead"
+                        | "forward"
+                        | "forwards"
+                        | "straight"
+                        | "continue"
+                        | "keep"
+                )
+            });
         if dist == 0.0 && !pure_turn && !turn_cue {
             // "a little" and an unqualified drive both take the short default.
             dist = if vague_far { VAGUE_FAR_M } else { VAGUE_SHORT_M };
@@ -745,11 +920,16 @@ fn person_identity(phrase: &str, capital: bool) -> Option<String> {
     let ws: Vec<&str> = phrase.split_whitespace().collect();
     if ws.len() >= 2 && HONORIFICS.contains(&ws[0]) {
         let name = ws[1..].join(" ");
-        let name: String = name.chars().filter(|c| c.is_ascii_alphabetic() || matches!(c, ' ' | '\'' | '-' | '.')).collect();
+        let name: String =
+            name.chars().filter(|c| c.is_ascii_alphabetic() || matches!(c, ' ' | '\'' | '-' | '.')).collect();
         let name = name.trim_matches(['.', ' ']).to_string();
         return (!name.is_empty()).then_some(name);
     }
-    if capital && ws.len() == 1 && crate::grounding::lexical(ws[0]).is_none() && ws[0].chars().all(|c| c.is_ascii_alphabetic()) {
+    if capital
+        && ws.len() == 1
+        && crate::grounding::lexical(ws[0]).is_none()
+        && ws[0].chars().all(|c| c.is_ascii_alphabetic())
+    {
         return Some(ws[0].to_string());
     }
     None
@@ -872,7 +1052,9 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
         match d {
             Directive::Unknown(clause) => {
                 return Parsed::ask(
-                    format!("I did not understand \"{clause}\". Could you rephrase it as a move, a place to find, a person to follow, or \"go back\"?"),
+                    format!(
+                        "I did not understand \"{clause}\". Could you rephrase it as a move, a place to find, a person to follow, or \"go back\"?"
+                    ),
                     format!("no action recognised in \"{clause}\""),
                     vec![],
                     notes,
@@ -883,7 +1065,9 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
             Directive::Move { yaw, dist, desc } => {
                 if dist > MAX_SPLIT_M {
                     return Parsed::ask(
-                        format!("That is {dist} m. I can drive at most {MAX_SPLIT_M} m in one instruction; how far should I go?"),
+                        format!(
+                            "That is {dist} m. I can drive at most {MAX_SPLIT_M} m in one instruction; how far should I go?"
+                        ),
                         format!("distance {dist} m in \"{desc}\" is too far"),
                         vec![],
                         notes,
@@ -898,7 +1082,8 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
                         notes,
                     );
                 }
-                if dist > 0.0 && yaw == 0.0
+                if dist > 0.0
+                    && yaw == 0.0
                     && let Some(prev) = steps.last_mut()
                     && prev.action == Action::Move
                     && prev.f_dist == 0.0
@@ -916,7 +1101,11 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
                     Err(ask) => return ask.with_notes(notes),
                 }
                 if let Some(yaw) = turn_after {
-                    steps.push(Step::moving(format!("turn {} at the landmark", if yaw > 0.0 { "left" } else { "right" }), 0.0, round2(yaw)));
+                    steps.push(Step::moving(
+                        format!("turn {} at the landmark", if yaw > 0.0 { "left" } else { "right" }),
+                        0.0,
+                        round2(yaw),
+                    ));
                 }
             }
             Directive::Follow { phrase, capital, d_s, duration_s } => {
@@ -924,7 +1113,12 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
                     Ok(mut step) => {
                         if let Some(t) = duration_s {
                             if !(0.0..=3600.0).contains(&t) {
-                                return Parsed::ask("For how long should I follow? At most one hour.", format!("follow duration {t} s is out of range"), vec![], notes);
+                                return Parsed::ask(
+                                    "For how long should I follow? At most one hour.",
+                                    format!("follow duration {t} s is out of range"),
+                                    vec![],
+                                    notes,
+                                );
                             }
                             step.duration_s = Some(t);
                         }
@@ -944,13 +1138,19 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
         );
     }
     // Count moves as the validator will split them (≤ 10 m each).
-    let expanded: usize = steps
-        .iter()
-        .map(|s| if s.action == Action::Move { ((s.f_dist / crate::plan::MAX_STEP_M).ceil() as usize).max(1) } else { 1 })
-        .sum();
+    let expanded: usize =
+        steps
+            .iter()
+            .map(|s| {
+                if s.action == Action::Move { ((s.f_dist / crate::plan::MAX_STEP_M).ceil() as usize).max(1) } else { 1 }
+            })
+            .sum();
     if expanded > crate::plan::MAX_STEPS {
         return Parsed::ask(
-            format!("That is {expanded} steps; I can plan at most {} at once. Could you split the instruction?", crate::plan::MAX_STEPS),
+            format!(
+                "That is {expanded} steps; I can plan at most {} at once. Could you split the instruction?",
+                crate::plan::MAX_STEPS
+            ),
             "too many steps",
             vec![],
             notes,

@@ -84,7 +84,10 @@ impl Default for Options {
 /// Loads the models, spawns the planner actor and returns the PlannerService.
 /// Fails when all-MiniLM-L6-v2 is missing, naming the file and
 /// `deploy/fetch-models.sh`.
-pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+pub async fn services(
+    opts: &Options,
+    server: &vlnav_runtime::ServerConfig,
+) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     let opts = opts.clone();
     let planner = tokio::task::spawn_blocking(move || planner::Planner::load(&opts)).await??;
     let validator = planner.validator();

@@ -51,7 +51,8 @@ pub const EXAMPLES: &[(&str, &str)] = &[
 
 /// The static constraints every backend gets.
 pub fn system_prompt() -> String {
-    let classes = vlnav_proto::coco::CLASSES.iter().enumerate().map(|(i, c)| format!("{i} {c}")).collect::<Vec<_>>().join(", ");
+    let classes =
+        vlnav_proto::coco::CLASSES.iter().enumerate().map(|(i, c)| format!("{i} {c}")).collect::<Vec<_>>().join(", ");
     format!(
         "You turn a spoken instruction for a wheeled robot into a JSON plan. Output only a JSON array of steps.\n\
          Actions (no others exist):\n\
@@ -70,7 +71,8 @@ pub fn system_prompt() -> String {
 /// overflow: the action set, units, limits and the most common classes.
 pub fn compact_system_prompt() -> String {
     let common = [0, 1, 2, 13, 16, 39, 41, 56, 57, 58, 60, 62, 63, 72];
-    let classes = common.iter().map(|&i| format!("{i} {}", vlnav_proto::coco::CLASSES[i])).collect::<Vec<_>>().join(", ");
+    let classes =
+        common.iter().map(|&i| format!("{i} {}", vlnav_proto::coco::CLASSES[i])).collect::<Vec<_>>().join(", ");
     format!(
         "Robot plans as JSON. Actions: MOVE (yaw radians, left positive; f_dist metres, at most {MAX_STEP_M}), \
          FIND (target, id = COCO class id, optional person), FOLLOW (target, id, optional duration_s), RETURN. \

@@ -3,7 +3,10 @@
 use clap::Parser;
 
 #[derive(Parser)]
-#[command(name = "vlnav-planner", about = "Instruction to a validated action plan (rules, OpenAI-compatible, GGUF) over gRPC")]
+#[command(
+    name = "vlnav-planner",
+    about = "Instruction to a validated action plan (rules, OpenAI-compatible, GGUF) over gRPC"
+)]
 struct Cli {
     #[command(flatten)]
     planner: vlnav_planner::Options,

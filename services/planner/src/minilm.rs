@@ -43,9 +43,11 @@ impl MiniLm {
             }
         }
         let load = |msg: String| EmbedError::Load { path: dir.clone(), msg };
-        let config: Config = serde_json::from_slice(&std::fs::read(dir.join("config.json")).map_err(|e| load(e.to_string()))?)
-            .map_err(|e| load(format!("config.json: {e}")))?;
-        let mut tokenizer = Tokenizer::from_file(dir.join("tokenizer.json")).map_err(|e| load(format!("tokenizer.json: {e}")))?;
+        let config: Config =
+            serde_json::from_slice(&std::fs::read(dir.join("config.json")).map_err(|e| load(e.to_string()))?)
+                .map_err(|e| load(format!("config.json: {e}")))?;
+        let mut tokenizer =
+            Tokenizer::from_file(dir.join("tokenizer.json")).map_err(|e| load(format!("tokenizer.json: {e}")))?;
         tokenizer
             .with_truncation(Some(tokenizers::TruncationParams { max_length: MAX_TOKENS, ..Default::default() }))
             .map_err(|e| load(format!("tokenizer truncation: {e}")))?;

@@ -186,7 +186,11 @@ impl Plan {
                 f_dist: f("f_dist").unwrap_or(0.0),
                 yaw: f("yaw").unwrap_or(0.0),
                 target: s("target").unwrap_or_default(),
-                class_id: o.get("id").and_then(Value::as_i64).map(|x| x.clamp(i32::MIN as i64, i32::MAX as i64) as i32).unwrap_or(if matches!(action, Action::Find | Action::Follow) { -1 } else { 0 }),
+                class_id: o
+                    .get("id")
+                    .and_then(Value::as_i64)
+                    .map(|x| x.clamp(i32::MIN as i64, i32::MAX as i64) as i32)
+                    .unwrap_or(if matches!(action, Action::Find | Action::Follow) { -1 } else { 0 }),
                 person: s("person"),
                 d_s: f("d_s"),
                 duration_s: f("duration_s"),

@@ -50,7 +50,10 @@ impl Planner {
     /// Loads MiniLM (required) and, if configured, the OpenAI client and the GGUF model.
     pub fn load(opts: &Options) -> anyhow::Result<Planner> {
         if !BACKENDS.contains(&opts.backend.as_str()) {
-            anyhow::bail!("--backend / VLNAV_PLANNER_BACKEND: unknown backend \"{}\"; use rules, openai or gguf", opts.backend);
+            anyhow::bail!(
+                "--backend / VLNAV_PLANNER_BACKEND: unknown backend \"{}\"; use rules, openai or gguf",
+                opts.backend
+            );
         }
         let minilm = MiniLm::load(&opts.models_dir)?;
         let grounder = Grounder::with_minilm(minilm, opts.grounding_threshold)?;
@@ -58,7 +61,11 @@ impl Planner {
             Some(url) => Some(OpenAiChat::new(OpenAiConfig {
                 base_url: url.clone(),
                 model: opts.openai_model.clone(),
-                api_key: opts.openai_api_key.clone().or_else(|| std::env::var("OPENAI_API_KEY").ok()).filter(|k| !k.is_empty()),
+                api_key: opts
+                    .openai_api_key
+                    .clone()
+                    .or_else(|| std::env::var("OPENAI_API_KEY").ok())
+                    .filter(|k| !k.is_empty()),
                 timeout: Duration::from_secs_f64(opts.openai_timeout_s.max(0.1)),
                 max_tokens: 512,
             })?),
@@ -73,11 +80,22 @@ impl Planner {
         } else {
             Gguf::NotLoaded(gguf_path)
         };
-        Ok(Planner { validator: Arc::new(Validator::new()), grounder, default_backend: opts.backend.clone(), openai, gguf })
+        Ok(Planner {
+            validator: Arc::new(Validator::new()),
+            grounder,
+            default_backend: opts.backend.clone(),
+            openai,
+            gguf,
+        })
     }
 
     /// A planner from parts (benches and tests that bring their own grounder).
-    pub fn from_parts(grounder: Grounder, openai: Option<OpenAiChat>, gguf: Option<GemmaChat>, gguf_path: &Path) -> Planner {
+    pub fn from_parts(
+        grounder: Grounder,
+        openai: Option<OpenAiChat>,
+        gguf: Option<GemmaChat>,
+        gguf_path: &Path,
+    ) -> Planner {
         Planner {
             validator: Arc::new(Validator::new()),
             grounder,
@@ -98,7 +116,11 @@ impl Planner {
         &self.grounder
     }
 
-    fn model<'a>(openai: &'a mut Option<OpenAiChat>, gguf: &'a mut Gguf, backend: &str) -> Result<Option<&'a mut dyn ChatModel>, PlanError> {
+    fn model<'a>(
+        openai: &'a mut Option<OpenAiChat>,
+        gguf: &'a mut Gguf,
+        backend: &str,
+    ) -> Result<Option<&'a mut dyn ChatModel>, PlanError> {
         match backend {
             "rules" => Ok(None),
             "openai" => match openai.as_mut() {
@@ -136,7 +158,14 @@ impl Planner {
     }
 
     /// Revises the remaining plan after `failed_step` failed and the user answered.
-    pub fn replan(&mut self, plan: &Plan, failed_step: usize, failure: &str, answer: &str, backend: &str) -> Result<Planned, PlanError> {
+    pub fn replan(
+        &mut self,
+        plan: &Plan,
+        failed_step: usize,
+        failure: &str,
+        answer: &str,
+        backend: &str,
+    ) -> Result<Planned, PlanError> {
         if !backend.is_empty() && !BACKENDS.contains(&backend) {
             return Err(PlanError::UnknownBackend(backend.to_string()));
         }
@@ -146,7 +175,9 @@ impl Planner {
         let parsed = replan::replan(plan, failed_step, failure, answer, &self.grounder)?;
         let mut planned = self.checked(parsed, "rules");
         if !backend.is_empty() && backend != "rules" {
-            planned.notes.push(format!("replanning uses the rule-based parser; backend \"{backend}\" is used for Plan only"));
+            planned
+                .notes
+                .push(format!("replanning uses the rule-based parser; backend \"{backend}\" is used for Plan only"));
         }
         Ok(self.final_check(planned))
     }

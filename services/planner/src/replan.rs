@@ -23,9 +23,24 @@ pub enum ReplanError {
     Answer(htn::InputError),
 }
 
-const SKIP: &[&str] = &["skip", "skip it", "skip that", "never mind", "nevermind", "forget it", "move on", "ignore it", "leave it", "carry on", "continue", "next"];
-const RETRY: &[&str] = &["try again", "look again", "retry", "search again", "again", "keep looking", "look more", "try once more"];
-const BACK: &[&str] = &["go back", "come back", "return", "return to me", "come back to me", "go home", "abort", "give up"];
+const SKIP: &[&str] = &[
+    "skip",
+    "skip it",
+    "skip that",
+    "never mind",
+    "nevermind",
+    "forget it",
+    "move on",
+    "ignore it",
+    "leave it",
+    "carry on",
+    "continue",
+    "next",
+];
+const RETRY: &[&str] =
+    &["try again", "look again", "retry", "search again", "again", "keep looking", "look more", "try once more"];
+const BACK: &[&str] =
+    &["go back", "come back", "return", "return to me", "come back to me", "go home", "abort", "give up"];
 
 /// Lead-in words of an answer that names a target: "it's the red chair".
 const LEAD_INS: &[&str] = &[
@@ -48,7 +63,13 @@ fn normalise(answer: &str) -> String {
 }
 
 /// The revised plan for the remaining steps.
-pub fn replan(plan: &Plan, failed_step: usize, failure: &str, answer: &str, grounder: &Grounder) -> Result<Parsed, ReplanError> {
+pub fn replan(
+    plan: &Plan,
+    failed_step: usize,
+    failure: &str,
+    answer: &str,
+    grounder: &Grounder,
+) -> Result<Parsed, ReplanError> {
     if plan.steps.is_empty() {
         return Err(ReplanError::EmptyPlan);
     }
@@ -94,7 +115,9 @@ pub fn replan(plan: &Plan, failed_step: usize, failure: &str, answer: &str, grou
         let phrase = words[start..].join(" ");
         let phrase = phrase.trim_end_matches(" instead").to_string();
         if !phrase.is_empty()
-            && !phrase.split_whitespace().any(|w| matches!(w, "turn" | "move" | "left" | "right" | "meters" | "metres" | "m" | "then" | "and" | "follow"))
+            && !phrase.split_whitespace().any(|w| {
+                matches!(w, "turn" | "move" | "left" | "right" | "meters" | "metres" | "m" | "then" | "and" | "follow")
+            })
         {
             let probe = format!("find {phrase}");
             let parsed = htn::parse(&probe, grounder);
@@ -109,7 +132,11 @@ pub fn replan(plan: &Plan, failed_step: usize, failure: &str, answer: &str, grou
                 let mut steps = vec![replaced];
                 steps.extend_from_slice(rest);
                 notes.extend(parsed.notes);
-                return done(steps, notes, &format!("replaced the target of step {failed_step} with \"{}\"", found.target));
+                return done(
+                    steps,
+                    notes,
+                    &format!("replaced the target of step {failed_step} with \"{}\"", found.target),
+                );
             }
             if let Outcome::Clarify(_) = parsed.outcome
                 && !phrase.contains(' ')
@@ -157,7 +184,10 @@ mod tests {
         let g = Grounder::lexical_only();
         assert_eq!(steps(&replan(&plan(), 1, "not found", "skip it", &g).unwrap()), vec![Step::find("bicycle", 1)]);
         assert_eq!(steps(&replan(&plan(), 1, "not found", "Try again!", &g).unwrap()).len(), 2);
-        assert_eq!(steps(&replan(&plan(), 1, "not found", "go back", &g).unwrap()), vec![Step::go_back("return to the start")]);
+        assert_eq!(
+            steps(&replan(&plan(), 1, "not found", "go back", &g).unwrap()),
+            vec![Step::go_back("return to the start")]
+        );
     }
 
     #[test]

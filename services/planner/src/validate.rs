@@ -152,7 +152,9 @@ fn split_long_moves(value: &mut Value, notes: &mut Vec<String>) -> Result<(), Ve
             (true, Some(d)) if d > MAX_STEP_M && d <= MAX_SPLIT_M => {
                 let parts = (d / MAX_STEP_M).ceil() as usize;
                 let each = round_cm(d / parts as f64);
-                notes.push(format!("step {i}: split a {d} m move into {parts} moves of {each} m (at most {MAX_STEP_M} m each)"));
+                notes.push(format!(
+                    "step {i}: split a {d} m move into {parts} moves of {each} m (at most {MAX_STEP_M} m each)"
+                ));
                 for k in 0..parts {
                     let mut part = item.clone();
                     part["f_dist"] = serde_json::json!(each);
@@ -163,7 +165,9 @@ fn split_long_moves(value: &mut Value, notes: &mut Vec<String>) -> Result<(), Ve
                 }
             }
             (true, Some(d)) if d > MAX_SPLIT_M => {
-                return Err(vec![format!("step {i}: a {d} m move is beyond the {MAX_SPLIT_M} m one instruction may cover")]);
+                return Err(vec![format!(
+                    "step {i}: a {d} m move is beyond the {MAX_SPLIT_M} m one instruction may cover"
+                )]);
             }
             _ => out.push(item),
         }

@@ -24,10 +24,25 @@ const PARAPHRASES: &[(&str, &str)] = &[
 
 /// Phrases that name nothing a COCO detector sees.
 const UNGROUNDABLE: &[&str] = &[
-    "pharmacy", "kitchen", "lotus statue", "door", "window", "staircase", "elevator", "corridor", "the moon",
-    "fire exit", "reception", "statue", "parking lot", "wall", "asdfgh", "qwerty uiop",
+    "pharmacy",
+    "kitchen",
+    "lotus statue",
+    "door",
+    "window",
+    "staircase",
+    "elevator",
+    "corridor",
+    "the moon",
+    "fire exit",
+    "reception",
+    "statue",
+    "parking lot",
+    "wall",
+    "asdfgh",
+    "qwerty uiop",
     // Mishearings of "visitor chair": "visitor" names a person, the head noun does not.
-    "visitor care", "visitor character each close",
+    "visitor care",
+    "visitor character each close",
 ];
 
 #[test]

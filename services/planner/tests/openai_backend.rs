@@ -22,8 +22,14 @@ use vlnav_planner::plan::{Action, Outcome, Planned};
 use vlnav_planner::validate::Validator;
 
 fn client(base_url: String) -> OpenAiChat {
-    OpenAiChat::new(OpenAiConfig { base_url, model: "gemma3-270m".into(), api_key: None, timeout: Duration::from_secs(120), max_tokens: 256 })
-        .expect("http client")
+    OpenAiChat::new(OpenAiConfig {
+        base_url,
+        model: "gemma3-270m".into(),
+        api_key: None,
+        timeout: Duration::from_secs(120),
+        max_tokens: 256,
+    })
+    .expect("http client")
 }
 
 fn free_port() -> u16 {
@@ -69,7 +75,20 @@ fn a_real_llama_server_returns_valid_plans() {
     assert!(gguf.is_file(), "missing {}: run deploy/fetch-models.sh", gguf.display());
     let port = free_port();
     let child = Command::new(&bin)
-        .args(["-m", gguf.to_str().unwrap(), "--host", "127.0.0.1", "--port", &port.to_string(), "-c", "4096", "-t", "2", "-np", "1"])
+        .args([
+            "-m",
+            gguf.to_str().unwrap(),
+            "--host",
+            "127.0.0.1",
+            "--port",
+            &port.to_string(),
+            "-c",
+            "4096",
+            "-t",
+            "2",
+            "-np",
+            "1",
+        ])
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
@@ -89,7 +108,10 @@ fn a_real_llama_server_returns_valid_plans() {
         if let Ok(Some(status)) = server.0.try_wait() {
             let mut err = String::new();
             let _ = server.0.stderr.take().map(|mut e| e.read_to_string(&mut err));
-            panic!("llama-server exited with {status}: {}", err.chars().rev().take(2000).collect::<String>().chars().rev().collect::<String>());
+            panic!(
+                "llama-server exited with {status}: {}",
+                err.chars().rev().take(2000).collect::<String>().chars().rev().collect::<String>()
+            );
         }
         assert!(started.elapsed() < Duration::from_secs(180), "llama-server did not become healthy in 180 s");
         std::thread::sleep(Duration::from_millis(250));
@@ -102,12 +124,19 @@ fn a_real_llama_server_returns_valid_plans() {
     ] {
         let t = Instant::now();
         let p = llm::plan_with(&mut m, instruction, &Validator::new(), &grounder);
-        eprintln!("llama-server: {instruction:?} → backend {} in {:.2} s, notes {:?}, outcome {:?}", p.backend, t.elapsed().as_secs_f64(), p.notes, p.outcome);
+        eprintln!(
+            "llama-server: {instruction:?} → backend {} in {:.2} s, notes {:?}, outcome {:?}",
+            p.backend,
+            t.elapsed().as_secs_f64(),
+            p.notes,
+            p.outcome
+        );
         assert_valid(&p);
         assert!(p.backend == "openai" || p.notes.iter().any(|n| n.contains("fell back")), "{p:?}");
     }
     // The schema-constrained first answer for a plain instruction is accepted as is.
-    let p = llm::plan_with(&mut m, "Turn right, go 3 meters, follow the dog for 20 seconds.", &Validator::new(), &grounder);
+    let p =
+        llm::plan_with(&mut m, "Turn right, go 3 meters, follow the dog for 20 seconds.", &Validator::new(), &grounder);
     assert_eq!(p.backend, "openai", "{p:?}");
     drop(server);
 }

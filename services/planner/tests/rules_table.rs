@@ -30,7 +30,10 @@ const TABLE: &[(&str, &str)] = &[
         "Hi Buddy, please deliver this file to Mr. David and report back to me",
         r#"[{"action":"FIND","target":"mr. david","id":0,"person":"david"},{"action":"RETURN"}]"#,
     ),
-    ("Bring a water bottle from the kitchen", r#"[{"action":"FIND","target":"water bottle","id":39},{"action":"RETURN"}]"#),
+    (
+        "Bring a water bottle from the kitchen",
+        r#"[{"action":"FIND","target":"water bottle","id":39},{"action":"RETURN"}]"#,
+    ),
     ("Go ahead 10m, turn right at the Lotus statue, and proceed to the pharmacy", "?"),
     // Numbers, decimals and units.
     ("Move two meters forward", r#"[{"action":"MOVE","f_dist":2.0,"yaw":0.0}]"#),
@@ -39,7 +42,10 @@ const TABLE: &[(&str, &str)] = &[
     ("move two point five meters", r#"[{"action":"MOVE","f_dist":2.5,"yaw":0.0}]"#),
     ("go 150 cm forward", r#"[{"action":"MOVE","f_dist":1.5,"yaw":0.0}]"#),
     ("walk 10 feet ahead", r#"[{"action":"MOVE","f_dist":3.05,"yaw":0.0}]"#),
-    ("advance twenty five meters", r#"[{"action":"MOVE","f_dist":8.33,"yaw":0.0},{"action":"MOVE","f_dist":8.33,"yaw":0.0},{"action":"MOVE","f_dist":8.33,"yaw":0.0}]"#),
+    (
+        "advance twenty five meters",
+        r#"[{"action":"MOVE","f_dist":8.33,"yaw":0.0},{"action":"MOVE","f_dist":8.33,"yaw":0.0},{"action":"MOVE","f_dist":8.33,"yaw":0.0}]"#,
+    ),
     ("move half a meter forward", r#"[{"action":"MOVE","f_dist":0.5,"yaw":0.0}]"#),
     ("go a few meters ahead", r#"[{"action":"MOVE","f_dist":3.0,"yaw":0.0}]"#),
     ("take three steps forward", r#"[{"action":"MOVE","f_dist":2.25,"yaw":0.0}]"#),
@@ -85,11 +91,17 @@ const TABLE: &[(&str, &str)] = &[
     ("go to the pharmacy", "?"),
     ("find the statue", "?"),
     // People.
-    ("Hi buddy, please deliver this file to Mister David and report back to me.", r#"[{"action":"FIND","target":"mister david","id":0,"person":"david"},{"action":"RETURN"}]"#),
+    (
+        "Hi buddy, please deliver this file to Mister David and report back to me.",
+        r#"[{"action":"FIND","target":"mister david","id":0,"person":"david"},{"action":"RETURN"}]"#,
+    ),
     ("find Mrs. Smith", r#"[{"action":"FIND","target":"mrs. smith","id":0,"person":"smith"}]"#),
     ("go to David", r#"[{"action":"FIND","target":"david","id":0,"person":"david"}]"#),
     ("follow the person for 30 seconds", r#"[{"action":"FOLLOW","target":"person","id":0,"duration_s":30.0}]"#),
-    ("follow Mr. Brown for 2 minutes", r#"[{"action":"FOLLOW","target":"mr. brown","id":0,"person":"brown","duration_s":120.0}]"#),
+    (
+        "follow Mr. Brown for 2 minutes",
+        r#"[{"action":"FOLLOW","target":"mr. brown","id":0,"person":"brown","duration_s":120.0}]"#,
+    ),
     ("follow the dog", r#"[{"action":"FOLLOW","target":"dog","id":16}]"#),
     ("follow it", "?"),
     // Return.
@@ -126,7 +138,9 @@ fn same(a: &Value, b: &Value) -> bool {
     match (a, b) {
         (Value::Number(x), Value::Number(y)) => (x.as_f64().unwrap() - y.as_f64().unwrap()).abs() < 0.006,
         (Value::Array(x), Value::Array(y)) => x.len() == y.len() && x.iter().zip(y).all(|(p, q)| same(p, q)),
-        (Value::Object(x), Value::Object(y)) => x.len() == y.len() && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same(v, w))),
+        (Value::Object(x), Value::Object(y)) => {
+            x.len() == y.len() && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same(v, w)))
+        }
         _ => a == b,
     }
 }
@@ -141,12 +155,14 @@ fn the_rule_backend_produces_the_expected_plan_for_every_instruction() {
         let got = match &parsed.outcome {
             Outcome::Clarify(c) => {
                 if *expected != "?" {
-                    failures.push(format!("{instruction:?}: asked {:?} ({}), expected {expected}", c.question, c.reason));
+                    failures
+                        .push(format!("{instruction:?}: asked {:?} ({}), expected {expected}", c.question, c.reason));
                 }
                 continue;
             }
             Outcome::Plan(p) => {
-                let checked = validator.validate_plan(p).unwrap_or_else(|e| panic!("{instruction:?}: invalid plan {e:?}"));
+                let checked =
+                    validator.validate_plan(p).unwrap_or_else(|e| panic!("{instruction:?}: invalid plan {e:?}"));
                 checked.plan.to_json()
             }
         };

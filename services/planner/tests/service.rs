@@ -53,18 +53,20 @@ async fn plans_the_papers_example_over_grpc() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn asks_for_ungroundable_targets_and_rejects_bad_input() {
     let (mut c, server) = start().await;
-    let r = c.plan(pb::PlanRequest { instruction: "go to the pharmacy".into(), backend: String::new() }).await.unwrap().into_inner();
+    let r = c
+        .plan(pb::PlanRequest { instruction: "go to the pharmacy".into(), backend: String::new() })
+        .await
+        .unwrap()
+        .into_inner();
     match r.outcome {
         Some(Outcome::Clarification(q)) => assert!(q.reason.contains("pharmacy"), "{q:?}"),
         other => panic!("expected a question, got {other:?}"),
     }
     assert!(r.plan_json.is_empty());
 
-    for (instruction, field) in [
-        (String::new(), "empty"),
-        ("go ".repeat(2000), "bytes"),
-        ("move\u{0}\u{1}\u{7f}ahead".to_string(), "control"),
-    ] {
+    for (instruction, field) in
+        [(String::new(), "empty"), ("go ".repeat(2000), "bytes"), ("move\u{0}\u{1}\u{7f}ahead".to_string(), "control")]
+    {
         let e = c.plan(pb::PlanRequest { instruction, backend: String::new() }).await.unwrap_err();
         assert_eq!(e.code(), Code::InvalidArgument);
         assert!(e.message().contains("instruction") && e.message().contains(field), "{}", e.message());
@@ -75,7 +77,14 @@ async fn asks_for_ungroundable_targets_and_rejects_bad_input() {
     let e = c.plan(pb::PlanRequest { instruction: "go back".into(), backend: "openai".into() }).await.unwrap_err();
     assert_eq!(e.code(), Code::FailedPrecondition, "{}", e.message());
 
-    let r = c.plan(pb::PlanRequest { instruction: "Geh zum Stuhl und dreh dich nach links, bitte schnell".into(), backend: String::new() }).await.unwrap().into_inner();
+    let r = c
+        .plan(pb::PlanRequest {
+            instruction: "Geh zum Stuhl und dreh dich nach links, bitte schnell".into(),
+            backend: String::new(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
     assert!(matches!(r.outcome, Some(Outcome::Clarification(_))), "{r:?}");
     server.stop().await.unwrap();
 }
@@ -83,7 +92,14 @@ async fn asks_for_ungroundable_targets_and_rejects_bad_input() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replans_after_a_failed_find() {
     let (mut c, server) = start().await;
-    let r = c.plan(pb::PlanRequest { instruction: "move 2 m ahead, find the visitor chair, then find the bicycle".into(), backend: String::new() }).await.unwrap().into_inner();
+    let r = c
+        .plan(pb::PlanRequest {
+            instruction: "move 2 m ahead, find the visitor chair, then find the bicycle".into(),
+            backend: String::new(),
+        })
+        .await
+        .unwrap()
+        .into_inner();
     let plan = plan_of(&r).clone();
     let r = c
         .replan(pb::ReplanRequest {
@@ -103,7 +119,12 @@ async fn replans_after_a_failed_find() {
     assert_eq!(p.steps[1].class_id, 1);
 
     let e = c
-        .replan(pb::ReplanRequest { plan: Some(plan.clone()), failed_step: 9, answer: "skip it".into(), ..Default::default() })
+        .replan(pb::ReplanRequest {
+            plan: Some(plan.clone()),
+            failed_step: 9,
+            answer: "skip it".into(),
+            ..Default::default()
+        })
         .await
         .unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument);
@@ -124,7 +145,9 @@ async fn serves_the_schema_and_validates_plans() {
     assert_eq!(s.classes[56], "chair");
 
     let bad = c
-        .validate_plan(pb::ValidatePlanRequest { plan_json: r#"[{"action":"FIND","target":"x","id":99},{"action":"EXPLODE"}]"#.into() })
+        .validate_plan(pb::ValidatePlanRequest {
+            plan_json: r#"[{"action":"FIND","target":"x","id":99},{"action":"EXPLODE"}]"#.into(),
+        })
         .await
         .unwrap()
         .into_inner();
@@ -147,7 +170,8 @@ async fn start_fails_naming_the_missing_model_and_the_fetch_script() {
     let dir = std::env::temp_dir().join(format!("vlnav-planner-empty-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let opts = Options { models_dir: dir.clone(), ..Options::default() };
-    let err = vlnav_planner::services(&opts, &ServerConfig::default()).await.err().expect("start must fail").to_string();
+    let err =
+        vlnav_planner::services(&opts, &ServerConfig::default()).await.err().expect("start must fail").to_string();
     assert!(err.contains("model.safetensors") && err.contains("deploy/fetch-models.sh"), "{err}");
     let _ = std::fs::remove_dir(dir);
 }

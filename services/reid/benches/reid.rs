@@ -85,12 +85,24 @@ fn service(c: &mut Criterion) {
             let mut served = vlnav_runtime::testing::start_client(&cfg, set, ReidServiceClient::new).await.unwrap();
             let crop = image::imageops::crop_imm(&img, 250, 100, 120, 320).to_image();
             let person = Image { width: 120, height: 320, encoding: ImageEncoding::Rgb8 as i32, data: crop.into_raw() };
-            served.client.enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![person] }).await.unwrap();
+            served
+                .client
+                .enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![person] })
+                .await
+                .unwrap();
             served
         });
         let req = IdentifyRequest {
             frame: Some(RgbdFrame { rgb: Some(rgb.clone()), ..Default::default() }),
-            boxes: vec![BoundingBox { x_min: 250.0, y_min: 100.0, x_max: 370.0, y_max: 420.0, class_id: 0, score: 0.9, label: "person".into() }],
+            boxes: vec![BoundingBox {
+                x_min: 250.0,
+                y_min: 100.0,
+                x_max: 370.0,
+                y_max: 420.0,
+                class_id: 0,
+                score: 0.9,
+                label: "person".into(),
+            }],
             threshold: 0.0,
             name: String::new(),
         };

@@ -96,7 +96,10 @@ impl ReidActor {
     /// Starts the actor on a dedicated thread; it stops when every mailbox is dropped.
     pub fn spawn(self) -> Mailbox<Msg> {
         let (mailbox, rx) = Mailbox::channel("reid", 64);
-        std::thread::Builder::new().name("reid-actor".into()).spawn(move || self.run(rx)).expect("spawn the reid actor");
+        std::thread::Builder::new()
+            .name("reid-actor".into())
+            .spawn(move || self.run(rx))
+            .expect("spawn the reid actor");
         mailbox
     }
 

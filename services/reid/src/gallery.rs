@@ -40,7 +40,9 @@ pub enum GalleryError {
     Read { path: PathBuf, source: std::io::Error },
     #[error("the gallery {path} is corrupt: {source}")]
     Corrupt { path: PathBuf, source: serde_json::Error },
-    #[error("the gallery {path} holds {found} embeddings but this service runs {expected}; use another data dir or remove the file")]
+    #[error(
+        "the gallery {path} holds {found} embeddings but this service runs {expected}; use another data dir or remove the file"
+    )]
     WrongModel { path: PathBuf, found: String, expected: String },
     #[error("cannot write the gallery {path}: {source}")]
     Write { path: PathBuf, source: std::io::Error },
@@ -109,8 +111,8 @@ impl Gallery {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(Self::new(model, dim)),
             Err(source) => return Err(GalleryError::Read { path: path.to_path_buf(), source }),
         };
-        let g: Gallery =
-            serde_json::from_slice(&bytes).map_err(|source| GalleryError::Corrupt { path: path.to_path_buf(), source })?;
+        let g: Gallery = serde_json::from_slice(&bytes)
+            .map_err(|source| GalleryError::Corrupt { path: path.to_path_buf(), source })?;
         if g.model != model || g.dim != dim {
             return Err(GalleryError::WrongModel {
                 path: path.to_path_buf(),

@@ -83,7 +83,8 @@ pub fn decode_image(img: &v1::Image, field: &str) -> Result<RgbImage, Status> {
             return Ok(RgbImage::from_raw(w, h, img.data.clone()).expect("length checked"));
         }
         ImageEncoding::Png | ImageEncoding::Jpeg => {
-            let format = if encoding == ImageEncoding::Png { image::ImageFormat::Png } else { image::ImageFormat::Jpeg };
+            let format =
+                if encoding == ImageEncoding::Png { image::ImageFormat::Png } else { image::ImageFormat::Jpeg };
             image::load_from_memory_with_format(&img.data, format)
                 .map_err(|e| invalid(format!("{field}.data: not a readable {format:?} image: {e}")))?
                 .to_rgb8()
@@ -183,7 +184,10 @@ impl ReidService for ReidGrpc {
         } else if req.threshold.is_finite() && (-1.0..=1.0).contains(&req.threshold) {
             Some(req.threshold)
         } else {
-            return Err(invalid(format!("threshold: a cosine similarity in [-1, 1] (0 = default), got {}", req.threshold)));
+            return Err(invalid(format!(
+                "threshold: a cosine similarity in [-1, 1] (0 = default), got {}",
+                req.threshold
+            )));
         };
         let only = if req.name.trim().is_empty() { None } else { Some(check_name(&req.name, "name")?) };
         if req.boxes.len() > MAX_ITEMS {

@@ -81,7 +81,10 @@ impl Default for Options {
 }
 
 /// Loads the backend and the gallery, spawns the actor, returns the service.
-pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+pub async fn services(
+    opts: &Options,
+    server: &vlnav_runtime::ServerConfig,
+) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     let (backend, default_threshold, dim) = if opts.backend == "sim" {
         (Backend::Simulation, SIM_THRESHOLD, 0)
     } else {

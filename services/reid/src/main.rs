@@ -13,6 +13,11 @@ struct Cli {
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
-    vlnav_runtime::serve_main("vlnav-reid", vlnav_reid::DEFAULT_PORT, cli.server.clone(), vlnav_reid::services(&cli.opts, &cli.server))
-        .await
+    vlnav_runtime::serve_main(
+        "vlnav-reid",
+        vlnav_reid::DEFAULT_PORT,
+        cli.server.clone(),
+        vlnav_reid::services(&cli.opts, &cli.server),
+    )
+    .await
 }

@@ -59,7 +59,10 @@ impl InvertedResidual {
             relu6: true,
         });
         idx += 3;
-        layers.push(ConvBnAct { conv: dense(conv_bn(hidden, oup, 1, 1, 0, 1, vb.pp(idx), vb.pp(idx + 1))?), relu6: false });
+        layers.push(ConvBnAct {
+            conv: dense(conv_bn(hidden, oup, 1, 1, 0, 1, vb.pp(idx), vb.pp(idx + 1))?),
+            relu6: false,
+        });
         Ok(Self { layers, residual: stride == 1 && inp == oup })
     }
 }
@@ -95,7 +98,10 @@ impl MobileNetV2 {
     pub fn load(vb: VarBuilder) -> Result<Self> {
         let f = vb.pp("features");
         let mut stages = Vec::with_capacity(19);
-        stages.push(Stage::Conv(ConvBnAct { conv: dense(conv_bn(3, 32, 3, 2, 1, 1, f.pp("0.0"), f.pp("0.1"))?), relu6: true }));
+        stages.push(Stage::Conv(ConvBnAct {
+            conv: dense(conv_bn(3, 32, 3, 2, 1, 1, f.pp("0.0"), f.pp("0.1"))?),
+            relu6: true,
+        }));
         let mut inp = 32;
         for (t, c, n, s) in SETTINGS {
             for i in 0..n {

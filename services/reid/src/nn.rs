@@ -117,7 +117,13 @@ impl Module for Depthwise {
             x.contiguous()?.apply_op3_no_bwd(&self.weight, &self.bias, &op)
         } else {
             let channels = self.weight.dim(0)?;
-            let cfg = Conv2dConfig { padding: self.padding, stride: self.stride, dilation: 1, groups: channels, cudnn_fwd_algo: None };
+            let cfg = Conv2dConfig {
+                padding: self.padding,
+                stride: self.stride,
+                dilation: 1,
+                groups: channels,
+                cudnn_fwd_algo: None,
+            };
             Conv2d::new(self.weight.clone(), Some(self.bias.clone()), cfg).forward(x)
         }
     }
@@ -131,7 +137,9 @@ struct DepthwiseCpu {
 
 fn f32_slice<'a>(s: &'a candle_core::CpuStorage, l: &candle_core::Layout, what: &str) -> Result<&'a [f32]> {
     let candle_core::CpuStorage::F32(v) = s else { candle_core::bail!("depthwise {what}: f32 expected") };
-    let Some((start, end)) = l.contiguous_offsets() else { candle_core::bail!("depthwise {what}: contiguous expected") };
+    let Some((start, end)) = l.contiguous_offsets() else {
+        candle_core::bail!("depthwise {what}: contiguous expected")
+    };
     Ok(&v[start..end])
 }
 
@@ -201,7 +209,14 @@ impl candle_core::CustomOp3 for DepthwiseCpu {
 }
 
 /// `conv_bn` for a depthwise convolution, run by [`Depthwise`].
-pub fn depthwise_bn(channels: usize, kernel: usize, stride: usize, padding: usize, conv: VarBuilder, bn: VarBuilder) -> Result<Depthwise> {
+pub fn depthwise_bn(
+    channels: usize,
+    kernel: usize,
+    stride: usize,
+    padding: usize,
+    conv: VarBuilder,
+    bn: VarBuilder,
+) -> Result<Depthwise> {
     let (weight, bias) = conv_bn(channels, channels, kernel, stride, padding, channels, conv, bn)?.parts()?;
     Depthwise::new(weight, bias.expect("folded convolutions have a bias"), stride, padding)
 }
@@ -296,7 +311,9 @@ mod tests {
     #[test]
     fn the_depthwise_kernel_matches_candles_grouped_convolution() -> Result<()> {
         let dev = Device::Cpu;
-        for (k, stride, padding, h, w) in [(3, 1, 1, 9, 7), (3, 2, 1, 9, 7), (3, 2, 1, 8, 8), (5, 2, 2, 11, 6), (3, 1, 0, 4, 5)] {
+        for (k, stride, padding, h, w) in
+            [(3, 1, 1, 9, 7), (3, 2, 1, 9, 7), (3, 2, 1, 8, 8), (5, 2, 2, 11, 6), (3, 1, 0, 4, 5)]
+        {
             let c = 6;
             let weight = Tensor::randn(0f32, 1.0, (c, 1, k, k), &dev)?;
             let bias = Tensor::randn(0f32, 1.0, c, &dev)?;

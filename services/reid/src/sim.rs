@@ -40,7 +40,8 @@ pub struct LabelledIdentity {
 /// label image), or `None` when no person pixel lies in it.
 pub fn identity_under_box(labels: &Labels, region: CropBox) -> Option<LabelledIdentity> {
     let (x0, y0) = (region.x_min.floor() as u32, region.y_min.floor() as u32);
-    let (x1, y1) = (region.x_max.ceil().min(labels.width as f32) as u32, region.y_max.ceil().min(labels.height as f32) as u32);
+    let (x1, y1) =
+        (region.x_max.ceil().min(labels.width as f32) as u32, region.y_max.ceil().min(labels.height as f32) as u32);
     let mut counts: HashMap<u16, u32> = HashMap::new();
     let mut person_pixels = 0u32;
     for y in y0..y1 {

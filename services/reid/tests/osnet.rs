@@ -33,7 +33,8 @@ fn parameter_counts_match_the_osnet_paper() {
 #[test]
 fn both_variants_load_torchreid_checkpoints_and_embed_in_512_d() {
     let dir = tempfile::tempdir().unwrap();
-    let img = image::RgbImage::from_fn(64, 160, |x, y| image::Rgb([(x * 3) as u8, (y + 40) as u8, ((x * y) % 251) as u8]));
+    let img =
+        image::RgbImage::from_fn(64, 160, |x, y| image::Rgb([(x * 3) as u8, (y + 40) as u8, ((x * y) % 251) as u8]));
     for variant in [OsnetVariant::X0_25, OsnetVariant::X1_0] {
         let path = dir.path().join(format!("{}.safetensors", variant.name()));
         // 751 identities: a Market-1501 classifier, which the extractor ignores.

@@ -47,7 +47,10 @@ fn augmented_crops_of_one_person_are_closer_than_crops_of_others() {
         min_same = min_same.min(same);
         max_other = max_other.max(other);
     }
-    println!("same-person similarity ≥ {min_same:.3}; different people ≤ {max_other:.3}; default threshold {}", vlnav_reid::MOBILENETV2_THRESHOLD);
+    println!(
+        "same-person similarity ≥ {min_same:.3}; different people ≤ {max_other:.3}; default threshold {}",
+        vlnav_reid::MOBILENETV2_THRESHOLD
+    );
 }
 
 fn jpeg_frame(file: &str) -> RgbdFrame {
@@ -79,8 +82,16 @@ async fn the_service_names_enrolled_people_in_the_original_photos() {
     let enrolled: Vec<_> = people().into_iter().filter(|(f, _, _)| *f != "bike.jpg").collect();
     for (i, (file, name, b)) in enrolled.iter().enumerate() {
         let img = photo(file);
-        let images = vec![png(&augmented_crop(&img, *b, 50 + i as u64, true)), png(&augmented_crop(&img, *b, 70 + i as u64, true))];
-        let r = running.client.enroll_person(EnrollPersonRequest { name: name.to_string(), images }).await.unwrap().into_inner();
+        let images = vec![
+            png(&augmented_crop(&img, *b, 50 + i as u64, true)),
+            png(&augmented_crop(&img, *b, 70 + i as u64, true)),
+        ];
+        let r = running
+            .client
+            .enroll_person(EnrollPersonRequest { name: name.to_string(), images })
+            .await
+            .unwrap()
+            .into_inner();
         assert_eq!(r.embeddings, 2);
         assert_eq!(r.gallery_size, i as u32 + 1);
     }
@@ -91,7 +102,15 @@ async fn the_service_names_enrolled_people_in_the_original_photos() {
             .iter()
             .map(|(_, _, b)| {
                 let (dx, dy) = (0.03 * (b[2] - b[0]), 0.03 * (b[3] - b[1]));
-                BoundingBox { x_min: b[0] + dx, y_min: b[1] + dy, x_max: b[2] - dx, y_max: b[3] - dy, class_id: 0, score: 0.9, label: "person".into() }
+                BoundingBox {
+                    x_min: b[0] + dx,
+                    y_min: b[1] + dy,
+                    x_max: b[2] - dx,
+                    y_max: b[3] - dy,
+                    class_id: 0,
+                    score: 0.9,
+                    label: "person".into(),
+                }
             })
             .collect();
         let r = running
@@ -110,7 +129,15 @@ async fn the_service_names_enrolled_people_in_the_original_photos() {
     // The bike riders were never enrolled: nobody may be matched to them.
     let boxes = boxes::BIKE
         .iter()
-        .map(|(_, b)| BoundingBox { x_min: b[0], y_min: b[1], x_max: b[2], y_max: b[3], class_id: 0, score: 0.9, label: "person".into() })
+        .map(|(_, b)| BoundingBox {
+            x_min: b[0],
+            y_min: b[1],
+            x_max: b[2],
+            y_max: b[3],
+            class_id: 0,
+            score: 0.9,
+            label: "person".into(),
+        })
         .collect();
     let r = running
         .client

@@ -51,7 +51,12 @@ fn labelled_frame() -> RgbdFrame {
             width: w,
             height: h,
             instance_ids: ids,
-            instances: vec![inst(1, -1, "", "wall"), inst(2, 0, "ana", "object"), inst(3, 0, "bo", "object"), inst(4, 0, "", "object")],
+            instances: vec![
+                inst(1, -1, "", "wall"),
+                inst(2, 0, "ana", "object"),
+                inst(3, 0, "bo", "object"),
+                inst(4, 0, "", "object"),
+            ],
         }),
         ..Default::default()
     }
@@ -67,7 +72,18 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
         (enroll("ana", vec![]), "images"),
         (enroll("ana", vec![Image { data: vec![0; 4 * 4 * 4], ..rgb8(4, 4) }]), "4 channels"),
         (enroll("ana", vec![Image { data: vec![0; 10], ..rgb8(4, 4) }]), "images[0].data"),
-        (enroll("ana", vec![Image { width: 0, height: 0, encoding: ImageEncoding::Jpeg as i32, data: vec![0xFF, 0xD8, 0xFF, 0xE0, 0, 16] }]), "Jpeg"),
+        (
+            enroll(
+                "ana",
+                vec![Image {
+                    width: 0,
+                    height: 0,
+                    encoding: ImageEncoding::Jpeg as i32,
+                    data: vec![0xFF, 0xD8, 0xFF, 0xE0, 0, 16],
+                }],
+            ),
+            "Jpeg",
+        ),
         (enroll("ana", vec![Image { encoding: ImageEncoding::Unspecified as i32, ..rgb8(4, 4) }]), "encoding"),
     ];
     for (req, needle) in cases {
@@ -84,7 +100,8 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
     assert!(err.message().contains("declared 6×3 but the image is 5×3"), "{}", err.message());
 
     s.client.enroll_person(enroll("ana", vec![rgb8(4, 4)])).await.unwrap();
-    let identify = |boxes, threshold| IdentifyRequest { frame: Some(labelled_frame()), boxes, threshold, name: String::new() };
+    let identify =
+        |boxes, threshold| IdentifyRequest { frame: Some(labelled_frame()), boxes, threshold, name: String::new() };
     for (req, needle) in [
         (identify(vec![bx(0.0, 0.0, 5.0, 5.0), bx(50.0, 0.0, 60.0, 10.0)], 0.0), "boxes[1]"),
         (identify(vec![bx(5.0, 0.0, 2.0, 5.0)], 0.0), "boxes[0]"),
@@ -98,7 +115,16 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
     }
     let mut frame = labelled_frame();
     frame.labels.as_mut().unwrap().instance_ids.truncate(100);
-    let err = s.client.identify(IdentifyRequest { frame: Some(frame), boxes: vec![bx(0.0, 0.0, 5.0, 5.0)], threshold: 0.0, name: String::new() }).await.unwrap_err();
+    let err = s
+        .client
+        .identify(IdentifyRequest {
+            frame: Some(frame),
+            boxes: vec![bx(0.0, 0.0, 5.0, 5.0)],
+            threshold: 0.0,
+            name: String::new(),
+        })
+        .await
+        .unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("frame.labels.instance_ids"), "{}", err.message());
     s.stop().await.unwrap();
@@ -108,7 +134,12 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
 async fn an_empty_gallery_unknown_names_and_embeddings_on_sim_are_state_errors() {
     let dir = tempfile::tempdir().unwrap();
     let mut s = start(&sim_opts(dir.path())).await;
-    let req = IdentifyRequest { frame: Some(labelled_frame()), boxes: vec![bx(0.0, 0.0, 10.0, 20.0)], threshold: 0.0, name: String::new() };
+    let req = IdentifyRequest {
+        frame: Some(labelled_frame()),
+        boxes: vec![bx(0.0, 0.0, 10.0, 20.0)],
+        threshold: 0.0,
+        name: String::new(),
+    };
     let err = s.client.identify(req.clone()).await.unwrap_err();
     assert_eq!(err.code(), Code::FailedPrecondition);
     assert!(err.message().contains("EnrollPerson"), "{}", err.message());
@@ -139,16 +170,39 @@ async fn the_simulation_backend_reads_identities_under_each_box() {
     ];
     let r = s
         .client
-        .identify(IdentifyRequest { frame: Some(labelled_frame()), boxes: boxes.clone(), threshold: 0.0, name: String::new() })
+        .identify(IdentifyRequest {
+            frame: Some(labelled_frame()),
+            boxes: boxes.clone(),
+            threshold: 0.0,
+            name: String::new(),
+        })
         .await
         .unwrap()
         .into_inner();
-    let got: Vec<_> = r.identities.iter().map(|i| (i.box_index, i.name.as_str(), i.matched, (i.similarity * 1000.0).round() / 1000.0)).collect();
-    assert_eq!(got, vec![(0, "ana", true, 1.0), (1, "ana", true, 0.5), (2, "bo", true, 0.625), (3, "", false, 0.0), (4, "", false, 0.0)]);
+    let got: Vec<_> = r
+        .identities
+        .iter()
+        .map(|i| (i.box_index, i.name.as_str(), i.matched, (i.similarity * 1000.0).round() / 1000.0))
+        .collect();
+    assert_eq!(
+        got,
+        vec![
+            (0, "ana", true, 1.0),
+            (1, "ana", true, 0.5),
+            (2, "bo", true, 0.625),
+            (3, "", false, 0.0),
+            (4, "", false, 0.0)
+        ]
+    );
     // A stricter threshold rejects the mixed boxes; a name filter ignores everyone else.
     let r = s
         .client
-        .identify(IdentifyRequest { frame: Some(labelled_frame()), boxes: boxes.clone(), threshold: 0.7, name: "bo".into() })
+        .identify(IdentifyRequest {
+            frame: Some(labelled_frame()),
+            boxes: boxes.clone(),
+            threshold: 0.7,
+            name: "bo".into(),
+        })
         .await
         .unwrap()
         .into_inner();
@@ -165,7 +219,16 @@ async fn the_simulation_backend_reads_identities_under_each_box() {
     // Without labels the simulation backend cannot answer.
     let mut frame = labelled_frame();
     frame.labels = None;
-    let err = s.client.identify(IdentifyRequest { frame: Some(frame), boxes: vec![bx(0.0, 0.0, 4.0, 4.0)], threshold: 0.0, name: String::new() }).await.unwrap_err();
+    let err = s
+        .client
+        .identify(IdentifyRequest {
+            frame: Some(frame),
+            boxes: vec![bx(0.0, 0.0, 4.0, 4.0)],
+            threshold: 0.0,
+            name: String::new(),
+        })
+        .await
+        .unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("frame.labels"));
     s.stop().await.unwrap();
@@ -175,8 +238,16 @@ async fn the_simulation_backend_reads_identities_under_each_box() {
 async fn the_gallery_survives_a_restart_and_removal_persists() {
     let dir = tempfile::tempdir().unwrap();
     let mut s = start(&sim_opts(dir.path())).await;
-    s.client.enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![rgb8(2, 2), rgb8(3, 3)] }).await.unwrap();
-    let r = s.client.enroll_person(EnrollPersonRequest { name: " bo ".into(), images: vec![rgb8(2, 2)] }).await.unwrap().into_inner();
+    s.client
+        .enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![rgb8(2, 2), rgb8(3, 3)] })
+        .await
+        .unwrap();
+    let r = s
+        .client
+        .enroll_person(EnrollPersonRequest { name: " bo ".into(), images: vec![rgb8(2, 2)] })
+        .await
+        .unwrap()
+        .into_inner();
     assert_eq!((r.name.as_str(), r.embeddings, r.gallery_size), ("bo", 1, 2));
     s.stop().await.unwrap();
 
@@ -198,7 +269,11 @@ async fn the_gallery_survives_a_restart_and_removal_persists() {
 #[tokio::test]
 async fn a_missing_model_fails_at_start_naming_the_setup_step() {
     let dir = tempfile::tempdir().unwrap();
-    let opts = vlnav_reid::Options { models_dir: dir.path().join("no-models"), data_dir: dir.path().into(), ..Default::default() };
+    let opts = vlnav_reid::Options {
+        models_dir: dir.path().join("no-models"),
+        data_dir: dir.path().into(),
+        ..Default::default()
+    };
     let err = vlnav_reid::services(&opts, &Default::default()).await.err().expect("must fail");
     let msg = format!("{err:#}");
     assert!(msg.contains("deploy/fetch-models.sh") && msg.contains("mobilenetv2.safetensors"), "{msg}");
@@ -211,9 +286,15 @@ async fn a_missing_model_fails_at_start_naming_the_setup_step() {
 async fn embed_returns_unit_mobilenetv2_vectors() {
     common::require("reid/mobilenetv2.safetensors");
     let dir = tempfile::tempdir().unwrap();
-    let opts = vlnav_reid::Options { models_dir: common::models_dir(), data_dir: dir.path().into(), ..Default::default() };
+    let opts =
+        vlnav_reid::Options { models_dir: common::models_dir(), data_dir: dir.path().into(), ..Default::default() };
     let mut s = start(&opts).await;
-    let img = |v: u8| Image { width: 8, height: 16, encoding: ImageEncoding::Rgb8 as i32, data: (0..8 * 16 * 3).map(|i| (i as u8).wrapping_mul(v)).collect() };
+    let img = |v: u8| Image {
+        width: 8,
+        height: 16,
+        encoding: ImageEncoding::Rgb8 as i32,
+        data: (0..8 * 16 * 3).map(|i| (i as u8).wrapping_mul(v)).collect(),
+    };
     let r = s.client.embed(EmbedRequest { images: vec![img(3), img(7)] }).await.unwrap().into_inner();
     assert_eq!(r.model, "mobilenetv2");
     assert_eq!(r.embeddings.len(), 2);
@@ -224,7 +305,16 @@ async fn embed_returns_unit_mobilenetv2_vectors() {
     }
     // Empty gallery with a real model: FAILED_PRECONDITION too.
     let frame = RgbdFrame { rgb: Some(img(3)), ..Default::default() };
-    let err = s.client.identify(IdentifyRequest { frame: Some(frame), boxes: vec![bx(0.0, 0.0, 4.0, 8.0)], threshold: 0.0, name: String::new() }).await.unwrap_err();
+    let err = s
+        .client
+        .identify(IdentifyRequest {
+            frame: Some(frame),
+            boxes: vec![bx(0.0, 0.0, 4.0, 8.0)],
+            threshold: 0.0,
+            name: String::new(),
+        })
+        .await
+        .unwrap_err();
     assert_eq!(err.code(), Code::FailedPrecondition);
     s.stop().await.unwrap();
 }

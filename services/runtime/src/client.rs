@@ -82,8 +82,9 @@ fn endpoint(uri: &str) -> Result<Endpoint, AddressError> {
 pub fn channel(uri: &str) -> Result<TracedChannel, AddressError> {
     let ch = match uri.strip_prefix("dns:///") {
         Some(target) => {
-            let (host, port) = host_port(target)
-                .ok_or_else(|| AddressError(format!("{uri:?}: write dns:///host:port (a name or an address, and a port)")))?;
+            let (host, port) = host_port(target).ok_or_else(|| {
+                AddressError(format!("{uri:?}: write dns:///host:port (a name or an address, and a port)"))
+            })?;
             let name = format!("{host}:{port}");
             balanced(&format!("http://{name}"), move || tokio::net::lookup_host(name.clone()), DNS_REFRESH)?
         }
@@ -121,8 +122,9 @@ where
     F: Future<Output = std::io::Result<I>> + Send,
     I: Iterator<Item = SocketAddr>,
 {
-    let runtime = tokio::runtime::Handle::try_current()
-        .map_err(|_| AddressError("a dns:/// address is resolved in the background and needs a Tokio runtime".into()))?;
+    let runtime = tokio::runtime::Handle::try_current().map_err(|_| {
+        AddressError("a dns:/// address is resolved in the background and needs a Tokio runtime".into())
+    })?;
     let fallback = endpoint(fallback_uri)?;
     let (channel, changes) = Channel::balance_channel::<Member>(64);
     changes

@@ -18,8 +18,8 @@ use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tonic::body::Body;
 use tonic::server::NamedService;
-use tonic::transport::server::TcpIncoming;
 use tonic::service::RoutesBuilder;
+use tonic::transport::server::TcpIncoming;
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
@@ -293,9 +293,8 @@ where
     let telemetry = crate::telemetry::init(service_name)?;
     let services = build.await?;
     let addr = cfg.listen_addr(default_port);
-    let listener = TcpListener::bind(addr)
-        .await
-        .map_err(|e| anyhow::anyhow!("{service_name}: cannot listen on {addr}: {e}"))?;
+    let listener =
+        TcpListener::bind(addr).await.map_err(|e| anyhow::anyhow!("{service_name}: cannot listen on {addr}: {e}"))?;
     let token = CancellationToken::new();
     let trigger = token.clone();
     tokio::spawn(async move {

@@ -5,10 +5,10 @@
 //! Logs go to stderr, filtered by `RUST_LOG` (default `info`).
 
 use opentelemetry::trace::TracerProvider as _;
+use opentelemetry_sdk::Resource;
 use opentelemetry_sdk::metrics::SdkMeterProvider;
 use opentelemetry_sdk::propagation::TraceContextPropagator;
 use opentelemetry_sdk::trace::SdkTracerProvider;
-use opentelemetry_sdk::Resource;
 use tracing_subscriber::layer::SubscriberExt;
 use tracing_subscriber::util::SubscriberInitExt;
 use tracing_subscriber::{EnvFilter, Layer};
@@ -69,8 +69,7 @@ pub fn init(default_service_name: &str) -> anyhow::Result<Telemetry> {
             .with_max_export_batch_size(2048)
             .with_scheduled_delay(std::time::Duration::from_millis(200))
             .build();
-        let processor =
-            opentelemetry_sdk::trace::BatchSpanProcessor::builder(spans).with_batch_config(batch).build();
+        let processor = opentelemetry_sdk::trace::BatchSpanProcessor::builder(spans).with_batch_config(batch).build();
         tracer_builder = tracer_builder.with_span_processor(processor);
         let metrics = opentelemetry_otlp::MetricExporter::builder().with_tonic().with_endpoint(endpoint).build()?;
         let mp = SdkMeterProvider::builder().with_resource(resource).with_periodic_exporter(metrics).build();

@@ -60,7 +60,11 @@ impl<C> Connected<C> {
 
 /// [`start`], then a client made by `make` from a connected plain channel
 /// (a generated client's `new`, or a closure that also sets its limits).
-pub async fn start_client<C>(cfg: &ServerConfig, services: ServiceSet, make: impl FnOnce(Channel) -> C) -> anyhow::Result<Connected<C>> {
+pub async fn start_client<C>(
+    cfg: &ServerConfig,
+    services: ServiceSet,
+    make: impl FnOnce(Channel) -> C,
+) -> anyhow::Result<Connected<C>> {
     let server = start(cfg, services).await?;
     let client = make(server.connect().await?);
     Ok(Connected { client, server })
@@ -112,9 +116,9 @@ impl Drop for TestServer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tonic_health::pb::HealthCheckRequest;
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::health_client::HealthClient;
-    use tonic_health::pb::HealthCheckRequest;
 
     #[tokio::test]
     async fn serves_on_a_loopback_port_until_stopped() {

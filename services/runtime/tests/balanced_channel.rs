@@ -64,7 +64,10 @@ async fn requests_spread_over_the_resolved_replicas_and_follow_changes() {
 
     let seen = answers(&mut client, 60).await;
     assert_eq!(seen.values().sum::<usize>(), 60, "{seen:?}");
-    assert!(seen.get("a").copied().unwrap_or(0) >= 10 && seen.get("b").copied().unwrap_or(0) >= 10, "both replicas take load: {seen:?}");
+    assert!(
+        seen.get("a").copied().unwrap_or(0) >= 10 && seen.get("b").copied().unwrap_or(0) >= 10,
+        "both replicas take load: {seen:?}"
+    );
 
     // A third replica appears: it takes load after a refresh.
     let c = replica("c").await;

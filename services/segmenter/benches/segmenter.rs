@@ -4,7 +4,9 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::Vector3;
 use vlnav_proto::v1::segmenter_service_client::SegmenterServiceClient;
-use vlnav_proto::v1::{CameraInfo, CameraIntrinsics, CameraMount, DepthImage, Image, ImageEncoding, Point3, RgbdFrame, SegmentRequest};
+use vlnav_proto::v1::{
+    CameraInfo, CameraIntrinsics, CameraMount, DepthImage, Image, ImageEncoding, Point3, RgbdFrame, SegmentRequest,
+};
 use vlnav_segmenter::colour::default_classes;
 use vlnav_segmenter::segment::{ColourBackend, FrameView, PointSettings, segment};
 use vlnav_subgoal::camera::{Camera, Intrinsics, Mount, Projector};
@@ -74,8 +76,18 @@ fn service(c: &mut Criterion) {
         camera: Some(CameraInfo {
             width: W,
             height: H,
-            intrinsics: Some(CameraIntrinsics { fx: cam.intrinsics.fx, fy: cam.intrinsics.fy, cx: cam.intrinsics.cx, cy: cam.intrinsics.cy }),
-            mount: Some(CameraMount { translation: Some(Point3 { x: 0.3, y: 0.0, z: 0.6 }), roll: 0.0, pitch: 0.35, yaw: 0.0 }),
+            intrinsics: Some(CameraIntrinsics {
+                fx: cam.intrinsics.fx,
+                fy: cam.intrinsics.fy,
+                cx: cam.intrinsics.cx,
+                cy: cam.intrinsics.cy,
+            }),
+            mount: Some(CameraMount {
+                translation: Some(Point3 { x: 0.3, y: 0.0, z: 0.6 }),
+                roll: 0.0,
+                pitch: 0.35,
+                yaw: 0.0,
+            }),
             depth_min_m: 0.4,
             depth_max_m: 12.0,
         }),
@@ -86,7 +98,9 @@ fn service(c: &mut Criterion) {
     let req = SegmentRequest { frame: Some(frame), classes: vec![], return_mask: true, point_stride: 4 };
     let mut g = c.benchmark_group("service");
     g.sample_size(20);
-    g.bench_function("segment/colour/640x480-mask-stride-4", |b| b.iter(|| rt.block_on(client.segment(req.clone())).unwrap()));
+    g.bench_function("segment/colour/640x480-mask-stride-4", |b| {
+        b.iter(|| rt.block_on(client.segment(req.clone())).unwrap())
+    });
     g.finish();
     drop((client, server));
 }

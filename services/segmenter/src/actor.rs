@@ -5,7 +5,7 @@ use tokio::sync::{mpsc, oneshot};
 use vlnav_runtime::actor::Mailbox;
 use vlnav_subgoal::camera::Camera;
 
-use crate::segment::{FrameView, PointSettings, SegmentBackend, SegmentError, SemanticLabels, Segmentation, segment};
+use crate::segment::{FrameView, PointSettings, SegmentBackend, SegmentError, Segmentation, SemanticLabels, segment};
 
 /// A request with its buffers owned (they cross threads).
 pub struct SegmentJob {

@@ -13,7 +13,9 @@ pub struct HsvRange {
 
 impl HsvRange {
     pub fn contains(&self, [h, s, v]: [u8; 3]) -> bool {
-        (self.h[0]..=self.h[1]).contains(&h) && (self.s[0]..=self.s[1]).contains(&s) && (self.v[0]..=self.v[1]).contains(&v)
+        (self.h[0]..=self.h[1]).contains(&h)
+            && (self.s[0]..=self.s[1]).contains(&s)
+            && (self.v[0]..=self.v[1]).contains(&v)
     }
 }
 

@@ -2,7 +2,9 @@
 //! actor, convert back.
 
 use tonic::{Request, Response, Status};
-use vlnav_proto::v1::{self, ImageEncoding, Point3, SegmentRequest, SegmentResponse, segmenter_service_server::SegmenterService};
+use vlnav_proto::v1::{
+    self, ImageEncoding, Point3, SegmentRequest, SegmentResponse, segmenter_service_server::SegmenterService,
+};
 use vlnav_runtime::actor::Mailbox;
 use vlnav_subgoal::camera::{Camera, Intrinsics, Mount};
 
@@ -40,7 +42,10 @@ fn invalid(msg: impl Into<String>) -> Status {
 fn camera(frame: &v1::RgbdFrame) -> Result<Camera, Status> {
     let c = frame.camera.as_ref().ok_or_else(|| invalid("frame.camera: required (intrinsics and mount)"))?;
     if c.width == 0 || c.height == 0 || c.width > MAX_SIDE || c.height > MAX_SIDE {
-        return Err(invalid(format!("frame.camera: width and height must be 1–{MAX_SIDE}, got {}×{}", c.width, c.height)));
+        return Err(invalid(format!(
+            "frame.camera: width and height must be 1–{MAX_SIDE}, got {}×{}",
+            c.width, c.height
+        )));
     }
     let k = c.intrinsics.as_ref().ok_or_else(|| invalid("frame.camera.intrinsics: required"))?;
     if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0 && k.cx.is_finite() && k.cy.is_finite()) {
@@ -87,7 +92,8 @@ fn rgb(frame: &v1::RgbdFrame, w: u32, h: u32) -> Result<Vec<u8>, Status> {
             (img.data.clone(), w, h)
         }
         ImageEncoding::Png | ImageEncoding::Jpeg => {
-            let format = if encoding == ImageEncoding::Png { image::ImageFormat::Png } else { image::ImageFormat::Jpeg };
+            let format =
+                if encoding == ImageEncoding::Png { image::ImageFormat::Png } else { image::ImageFormat::Jpeg };
             let d = image::load_from_memory_with_format(&img.data, format)
                 .map_err(|e| invalid(format!("frame.rgb.data: not a readable {format:?} image: {e}")))?
                 .to_rgb8();

@@ -47,7 +47,12 @@ pub struct Options {
     #[arg(long = "segmenter-floor-tolerance-m", env = "VLNAV_SEGMENTER_FLOOR_TOLERANCE_M", default_value_t = 0.10)]
     pub floor_tolerance_m: f64,
     /// Heights above the floor of the stacked virtual points, metres.
-    #[arg(long = "segmenter-layers-m", env = "VLNAV_SEGMENTER_LAYERS_M", value_delimiter = ',', default_value = "0,0.25,0.5")]
+    #[arg(
+        long = "segmenter-layers-m",
+        env = "VLNAV_SEGMENTER_LAYERS_M",
+        value_delimiter = ',',
+        default_value = "0,0.25,0.5"
+    )]
     pub layers_m: Vec<f64>,
     /// Keep every n-th pixel (in x and in y) when making points, unless the request says otherwise.
     #[arg(long = "segmenter-point-stride", env = "VLNAV_SEGMENTER_POINT_STRIDE", default_value_t = 4)]
@@ -69,12 +74,17 @@ impl Default for Options {
 
 /// Reads a colour class table (JSON) and checks it.
 pub fn load_classes(path: &std::path::Path) -> anyhow::Result<Vec<ColourClass>> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read the class table {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read the class table {}", path.display()))?;
     let classes: Vec<ColourClass> =
         serde_json::from_str(&text).with_context(|| format!("{}: not a valid class table", path.display()))?;
     anyhow::ensure!(!classes.is_empty() && classes.len() < 255, "{}: 1–254 classes expected", path.display());
     for c in &classes {
-        anyhow::ensure!(!c.name.is_empty() && !c.ranges.is_empty(), "{}: every class needs a name and ranges", path.display());
+        anyhow::ensure!(
+            !c.name.is_empty() && !c.ranges.is_empty(),
+            "{}: every class needs a name and ranges",
+            path.display()
+        );
         for r in &c.ranges {
             anyhow::ensure!(
                 r.h[0] <= r.h[1] && r.h[1] <= 180 && r.s[0] <= r.s[1] && r.v[0] <= r.v[1],
@@ -88,7 +98,10 @@ pub fn load_classes(path: &std::path::Path) -> anyhow::Result<Vec<ColourClass>> 
 }
 
 /// Builds the backend, spawns the actor, returns the service.
-pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+pub async fn services(
+    opts: &Options,
+    server: &vlnav_runtime::ServerConfig,
+) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     let backend: Box<dyn SegmentBackend> = match opts.backend.as_str() {
         "colour" | "color" => Box::new(ColourBackend::new(match &opts.classes_file {
             Some(p) => load_classes(p)?,
@@ -108,8 +121,11 @@ pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> a
     anyhow::ensure!(opts.point_stride >= 1, "--segmenter-point-stride must be at least 1");
     let name = backend.name();
     tracing::info!(backend = name, classes = ?backend.classes(), "segmenter ready");
-    let settings =
-        PointSettings { floor_z_m: opts.floor_z_m, floor_tolerance_m: opts.floor_tolerance_m, layers_m: opts.layers_m.clone() };
+    let settings = PointSettings {
+        floor_z_m: opts.floor_z_m,
+        floor_tolerance_m: opts.floor_tolerance_m,
+        layers_m: opts.layers_m.clone(),
+    };
     let actor = SegmenterActor::new(backend, settings, opts.point_stride).spawn();
     let svc = SegmenterServiceServer::new(grpc::SegmenterGrpc::new(actor, name))
         .max_decoding_message_size(server.max_message_bytes)

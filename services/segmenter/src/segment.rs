@@ -108,7 +108,8 @@ impl SegmentBackend for SimBackend {
     fn label(&self, frame: &FrameView, wanted: &[bool]) -> Result<Vec<u8>, SegmentError> {
         let labels = frame.semantics.ok_or_else(|| {
             SegmentError::InvalidInput(
-                "frame.labels: the simulation backend reads semantics from the label image, and this frame has none".into(),
+                "frame.labels: the simulation backend reads semantics from the label image, and this frame has none"
+                    .into(),
             )
         })?;
         let class_of: HashMap<u32, u8> = labels
@@ -171,7 +172,11 @@ pub fn segment(
     let mut to_response = vec![0u8; known.len()];
     for (j, c) in classes.iter().enumerate() {
         let i = known.iter().position(|k| k == c).ok_or_else(|| {
-            SegmentError::InvalidInput(format!("classes[{j}]: {c:?} is not known to the {} backend (known: {})", backend.name(), known.join(", ")))
+            SegmentError::InvalidInput(format!(
+                "classes[{j}]: {c:?} is not known to the {} backend (known: {})",
+                backend.name(),
+                known.join(", ")
+            ))
         })?;
         if to_response[i] != 0 {
             return Err(SegmentError::InvalidInput(format!("classes[{j}]: {c:?} is listed twice")));
@@ -232,7 +237,12 @@ mod tests {
             width: w,
             height: h,
             intrinsics: Intrinsics { fx: 2.0, fy: 2.0, cx: (w as f64 - 1.0) / 2.0, cy: (h as f64 - 1.0) / 2.0 },
-            mount: Mount { translation: Vector3::new(0.0, 0.0, 1.0), roll: 0.0, pitch: std::f64::consts::FRAC_PI_2, yaw: 0.0 },
+            mount: Mount {
+                translation: Vector3::new(0.0, 0.0, 1.0),
+                roll: 0.0,
+                pitch: std::f64::consts::FRAC_PI_2,
+                yaw: 0.0,
+            },
             depth_min_m: 0.0,
             depth_max_m: 0.0,
         }
@@ -274,7 +284,10 @@ mod tests {
         let backend = ColourBackend::new(default_classes());
         let wanted = ["cable".to_string(), "hazard".to_string()];
         let seg = segment(&backend, &frame, Some(&wanted), 1, &PointSettings::default()).unwrap();
-        assert_eq!((seg.classes.as_slice(), seg.mask.as_slice(), seg.class_pixels.as_slice()), (&wanted[..], &[2u8][..], &[0, 1][..]));
+        assert_eq!(
+            (seg.classes.as_slice(), seg.mask.as_slice(), seg.class_pixels.as_slice()),
+            (&wanted[..], &[2u8][..], &[0, 1][..])
+        );
         let twice = ["hazard".to_string(), "hazard".to_string()];
         assert!(segment(&backend, &frame, Some(&twice), 1, &PointSettings::default()).is_err());
         let unknown = ["lava".to_string()];

@@ -111,7 +111,8 @@ fn frame(rgb: Vec<u8>, depth: Vec<u8>) -> RgbdFrame {
 async fn start(opts: vlnav_segmenter::Options) -> Connected<SegmenterServiceClient<tonic::transport::Channel>> {
     let cfg = ServerConfig::default();
     let set = vlnav_segmenter::services(&opts, &cfg).await.unwrap();
-    let make = |ch| SegmenterServiceClient::new(ch).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
+    let make =
+        |ch| SegmenterServiceClient::new(ch).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
     testing::start_client(&cfg, set, make).await.unwrap()
 }
 
@@ -156,7 +157,10 @@ async fn a_red_floor_zone_becomes_a_wall_of_points_where_it_lies_and_the_poster_
     assert!(zone_pts.len() > 300, "{} zone points", zone_pts.len());
     assert_eq!(zone_pts.len() % 3, 0);
     for p in &zone_pts {
-        assert!(p.x > ZONE.0[0] - tol && p.x < ZONE.0[1] + tol && p.y > ZONE.1[0] - tol && p.y < ZONE.1[1] + tol, "{p:?}");
+        assert!(
+            p.x > ZONE.0[0] - tol && p.x < ZONE.0[1] + tol && p.y > ZONE.1[0] - tol && p.y < ZONE.1[1] + tol,
+            "{p:?}"
+        );
         assert!([0.0, 0.25, 0.5].iter().any(|z| (p.z - z).abs() < 1e-9), "{p:?}");
     }
     for p in &tape_pts {
@@ -176,7 +180,12 @@ async fn class_selection_stride_and_mask_flag_are_honoured() {
     let (rgb, depth, _) = render();
     let s = start(Default::default()).await;
     let mut client = s.client.clone();
-    let req = SegmentRequest { frame: Some(frame(rgb, depth)), classes: vec!["hazard".into()], return_mask: false, point_stride: 0 };
+    let req = SegmentRequest {
+        frame: Some(frame(rgb, depth)),
+        classes: vec!["hazard".into()],
+        return_mask: false,
+        point_stride: 0,
+    };
     let r = client.segment(req.clone()).await.unwrap().into_inner();
     assert_eq!(r.classes, vec!["hazard"]);
     assert!(r.mask.is_empty(), "no mask unless asked");
@@ -202,7 +211,17 @@ async fn malformed_frames_get_invalid_argument_naming_the_field() {
         SegmentRequest { frame: Some(fr), classes: vec![], return_mask: false, point_stride: 0 }
     };
     let cases: Vec<(SegmentRequest, &str)> = vec![
-        (with(&|f| f.rgb = Some(Image { width: 320, height: 240, encoding: ImageEncoding::Rgb8 as i32, data: vec![0; 320 * 240 * 3] })), "frame.rgb"),
+        (
+            with(&|f| {
+                f.rgb = Some(Image {
+                    width: 320,
+                    height: 240,
+                    encoding: ImageEncoding::Rgb8 as i32,
+                    data: vec![0; 320 * 240 * 3],
+                })
+            }),
+            "frame.rgb",
+        ),
         (with(&|f| f.rgb.as_mut().unwrap().data = vec![0; (W * H * 4) as usize]), "3 channels"),
         (with(&|f| f.depth.as_mut().unwrap().width = 320), "frame.depth"),
         (with(&|f| f.depth.as_mut().unwrap().data_mm.truncate(1000)), "frame.depth.data_mm"),
@@ -221,7 +240,9 @@ async fn malformed_frames_get_invalid_argument_naming_the_field() {
     // A PNG-encoded colour image of the right size is accepted.
     let mut png = std::io::Cursor::new(Vec::new());
     image::RgbImage::from_raw(W, H, rgb).unwrap().write_to(&mut png, image::ImageFormat::Png).unwrap();
-    let req = with(&|f| f.rgb = Some(Image { width: 0, height: 0, encoding: ImageEncoding::Png as i32, data: png.get_ref().clone() }));
+    let req = with(&|f| {
+        f.rgb = Some(Image { width: 0, height: 0, encoding: ImageEncoding::Png as i32, data: png.get_ref().clone() })
+    });
     let r = client.segment(req).await.unwrap().into_inner();
     assert!(r.class_pixels[0] > 2000);
     s.stop().await.unwrap();
@@ -246,7 +267,12 @@ async fn the_simulation_backend_reads_semantics_from_the_label_image() {
             id.to_le_bytes()
         })
         .collect();
-    let inst = |id, semantic: &str| LabelInstance { instance_id: id, class_id: -1, identity: String::new(), semantic: semantic.into() };
+    let inst = |id, semantic: &str| LabelInstance {
+        instance_id: id,
+        class_id: -1,
+        identity: String::new(),
+        semantic: semantic.into(),
+    };
     let mut f = frame(rgb.iter().map(|_| 128).collect(), depth);
     f.labels = Some(LabelImage {
         width: W,
@@ -265,7 +291,10 @@ async fn the_simulation_backend_reads_semantics_from_the_label_image() {
     assert!(!r.virtual_points.is_empty());
     assert!(r.virtual_points.iter().all(|p| p.x > ZONE.0[0] - 0.05 && p.x < ZONE.0[1] + 0.05));
     f.labels = None;
-    let err = client.segment(SegmentRequest { frame: Some(f), classes: vec![], return_mask: false, point_stride: 0 }).await.unwrap_err();
+    let err = client
+        .segment(SegmentRequest { frame: Some(f), classes: vec![], return_mask: false, point_stride: 0 })
+        .await
+        .unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("frame.labels"));
     s.stop().await.unwrap();
@@ -276,11 +305,13 @@ async fn a_bad_class_table_or_backend_fails_at_start() {
     let dir = std::env::temp_dir().join(format!("vlnav-seg-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let path = dir.join("classes.json");
-    std::fs::write(&path, r#"[{"name": "blue_zone", "ranges": [{"h": [100, 200], "s": [0, 255], "v": [0, 255]}]}]"#).unwrap();
+    std::fs::write(&path, r#"[{"name": "blue_zone", "ranges": [{"h": [100, 200], "s": [0, 255], "v": [0, 255]}]}]"#)
+        .unwrap();
     let opts = vlnav_segmenter::Options { classes_file: Some(path.clone()), ..Default::default() };
     let err = vlnav_segmenter::services(&opts, &ServerConfig::default()).await.err().expect("H > 180 is refused");
     assert!(err.to_string().contains("H ≤ 180"), "{err}");
-    std::fs::write(&path, r#"[{"name": "blue_zone", "ranges": [{"h": [100, 130], "s": [100, 255], "v": [50, 255]}]}]"#).unwrap();
+    std::fs::write(&path, r#"[{"name": "blue_zone", "ranges": [{"h": [100, 130], "s": [100, 255], "v": [50, 255]}]}]"#)
+        .unwrap();
     let opts = vlnav_segmenter::Options { classes_file: Some(path), ..Default::default() };
     assert!(vlnav_segmenter::services(&opts, &ServerConfig::default()).await.is_ok());
     let opts = vlnav_segmenter::Options { backend: "esanet".into(), ..Default::default() };

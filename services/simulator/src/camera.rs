@@ -94,7 +94,10 @@ impl CameraConfig {
             return Err(("mount", format!("{:?}: the camera must sit above the floor (0 < z ≤ 5 m)", self.mount)));
         }
         if !(self.depth_min_m.is_finite() && self.depth_min_m >= 0.0 && self.depth_min_m < self.depth_max_m) {
-            return Err(("depth_min_m", format!("{} must be ≥ 0 and below depth_max_m ({})", self.depth_min_m, self.depth_max_m)));
+            return Err((
+                "depth_min_m",
+                format!("{} must be ≥ 0 and below depth_max_m ({})", self.depth_min_m, self.depth_max_m),
+            ));
         }
         if !(self.depth_max_m.is_finite() && self.depth_max_m <= 65.0) {
             return Err(("depth_max_m", format!("{} must be ≤ 65 m (u16 millimetres)", self.depth_max_m)));
@@ -177,7 +180,15 @@ impl Renderer {
 
     /// Renders the world at time `t` from a robot at `robot` (world frame)
     /// into `frame`, drawing depth noise from `rng`.
-    pub fn render<R: Rng>(&mut self, world: &World, cam: &CameraConfig, robot: &Pose2, t: f64, rng: &mut R, frame: &mut Frame) {
+    pub fn render<R: Rng>(
+        &mut self,
+        world: &World,
+        cam: &CameraConfig,
+        robot: &Pose2,
+        t: f64,
+        rng: &mut R,
+        frame: &mut Frame,
+    ) {
         let (w, h) = (cam.width as usize, cam.height as usize);
         frame.width = cam.width;
         frame.height = cam.height;
@@ -195,14 +206,18 @@ impl Renderer {
         self.ped_shapes.clear();
         self.ped_shapes.extend(world.pedestrians.iter().map(|p| p.shape_at(t)));
         let mut prisms: Vec<Prism> = Vec::with_capacity(world.solids.len() + world.pedestrians.len());
-        prisms.extend(world.solids.iter().map(|s| Prism { entity: s.entity, shape: &s.shape, height: s.height, color: s.color }));
-        prisms.extend(
-            world
-                .pedestrians
-                .iter()
-                .zip(&self.ped_shapes)
-                .map(|(p, s)| Prism { entity: p.entity, shape: s, height: p.height, color: p.color }),
-        );
+        prisms.extend(world.solids.iter().map(|s| Prism {
+            entity: s.entity,
+            shape: &s.shape,
+            height: s.height,
+            color: s.color,
+        }));
+        prisms.extend(world.pedestrians.iter().zip(&self.ped_shapes).map(|(p, s)| Prism {
+            entity: p.entity,
+            shape: s,
+            height: p.height,
+            color: p.color,
+        }));
 
         // Elevation slope of each row: height gained per metre of optical z.
         self.row_slope.clear();
@@ -232,7 +247,12 @@ impl Renderer {
                     shape.ray_spans(origin, d, &mut self.spans);
                     for s in &self.spans {
                         if s.t_out > 0.0 {
-                            self.floor.push(FloorHit { t_in: s.t_in, t_out: s.t_out, entity: m.entity, color: m.color });
+                            self.floor.push(FloorHit {
+                                t_in: s.t_in,
+                                t_out: s.t_out,
+                                entity: m.entity,
+                                color: m.color,
+                            });
                         }
                     }
                 }

@@ -120,10 +120,9 @@ impl Shape {
                 }
                 (lo, hi)
             }
-            Shape::Circle { centre, radius } => (
-                Vec2::new(centre.x - radius, centre.y - radius),
-                Vec2::new(centre.x + radius, centre.y + radius),
-            ),
+            Shape::Circle { centre, radius } => {
+                (Vec2::new(centre.x - radius, centre.y - radius), Vec2::new(centre.x + radius, centre.y + radius))
+            }
         }
     }
 
@@ -384,7 +383,11 @@ mod tests {
         Shape::Polygon(square()).ray_spans(Vec2::new(-1.0, 2.0), Vec2::new(1.0, 0.0), &mut spans);
         assert!(spans.iter().all(|s| s.t_out - s.t_in >= 0.0));
         spans.clear();
-        Shape::Circle { centre: Vec2::new(5.0, 0.0), radius: 1.0 }.ray_spans(Vec2::default(), Vec2::new(2.0, 0.0), &mut spans);
+        Shape::Circle { centre: Vec2::new(5.0, 0.0), radius: 1.0 }.ray_spans(
+            Vec2::default(),
+            Vec2::new(2.0, 0.0),
+            &mut spans,
+        );
         assert_eq!(spans.len(), 1);
         // t is in units of d (2 m): the circle spans x ∈ [4, 6].
         assert!((spans[0].t_in - 2.0).abs() < 1e-12 && (spans[0].t_out - 3.0).abs() < 1e-12);

@@ -24,10 +24,8 @@ pub use sim::{Odometry, Simulator, Truth};
 pub use world::{Entity, Semantic, World};
 
 /// The scenarios shipped with the crate (`scenarios/<name>.toml`).
-pub const SHIPPED: &[(&str, &str)] = &[
-    ("demo", include_str!("../scenarios/demo.toml")),
-    ("lab", include_str!("../scenarios/lab.toml")),
-];
+pub const SHIPPED: &[(&str, &str)] =
+    &[("demo", include_str!("../scenarios/demo.toml")), ("lab", include_str!("../scenarios/lab.toml"))];
 
 /// Loads a shipped scenario by name (`demo`, `lab`) or, if the argument names
 /// an existing file or ends in `.toml`, a scenario file.

@@ -44,7 +44,14 @@ pub struct HuskyParams {
 
 impl Default for HuskyParams {
     fn default() -> Self {
-        Self { max_linear: 1.0, max_angular: 2.0, max_linear_accel: 3.0, max_angular_accel: 6.0, length: 0.988, width: 0.670 }
+        Self {
+            max_linear: 1.0,
+            max_angular: 2.0,
+            max_linear_accel: 3.0,
+            max_angular_accel: 6.0,
+            length: 0.988,
+            width: 0.670,
+        }
     }
 }
 
@@ -133,7 +140,13 @@ pub struct RobotState {
 
 impl RobotState {
     pub fn at(start: Pose2) -> Self {
-        Self { truth: start, truth_twist: Twist::ZERO, odom: Pose2::default(), wheel_twist: Twist::ZERO, odom_origin: start }
+        Self {
+            truth: start,
+            truth_twist: Twist::ZERO,
+            odom: Pose2::default(),
+            wheel_twist: Twist::ZERO,
+            odom_origin: start,
+        }
     }
 
     /// Re-anchors odometry at the current pose.
@@ -146,13 +159,19 @@ impl RobotState {
 /// Clamps a command to the velocity limits.
 pub fn clamp_velocity(cmd: Twist, p: &HuskyParams) -> Twist {
     let sane = |v: f64| if v.is_finite() { v } else { 0.0 };
-    Twist::new(sane(cmd.linear).clamp(-p.max_linear, p.max_linear), sane(cmd.angular).clamp(-p.max_angular, p.max_angular))
+    Twist::new(
+        sane(cmd.linear).clamp(-p.max_linear, p.max_linear),
+        sane(cmd.angular).clamp(-p.max_angular, p.max_angular),
+    )
 }
 
 /// Moves `current` towards `target` by at most the acceleration limits over `dt`.
 pub fn ramp(current: Twist, target: Twist, p: &HuskyParams, dt: f64) -> Twist {
     let step = |c: f64, t: f64, a: f64| c + (t - c).clamp(-a * dt, a * dt);
-    Twist::new(step(current.linear, target.linear, p.max_linear_accel), step(current.angular, target.angular, p.max_angular_accel))
+    Twist::new(
+        step(current.linear, target.linear, p.max_linear_accel),
+        step(current.angular, target.angular, p.max_angular_accel),
+    )
 }
 
 /// One integration substep's motion: the new wheel twist, the truth twist
@@ -168,7 +187,14 @@ pub struct Motion {
 }
 
 /// Integrates one substep of `dt` seconds (exact arc integration).
-pub fn integrate<R: Rng>(state: &RobotState, cmd: Twist, p: &HuskyParams, slip: &SlipModel, dt: f64, rng: &mut R) -> Motion {
+pub fn integrate<R: Rng>(
+    state: &RobotState,
+    cmd: Twist,
+    p: &HuskyParams,
+    slip: &SlipModel,
+    dt: f64,
+    rng: &mut R,
+) -> Motion {
     let wheel = ramp(state.wheel_twist, clamp_velocity(cmd, p), p, dt);
     let (v, w) = (wheel.linear, wheel.angular);
     let moving = v != 0.0 || w != 0.0;
@@ -192,11 +218,8 @@ pub fn integrate<R: Rng>(state: &RobotState, cmd: Twist, p: &HuskyParams, slip: 
 pub fn advance(pose: Pose2, twist: Twist, lateral: f64, dt: f64) -> Pose2 {
     let dth = twist.angular * dt;
     // Body-frame displacement of a constant-twist arc.
-    let (fx, fy) = if dth.abs() < 1e-9 {
-        (1.0 - dth * dth / 6.0, dth / 2.0)
-    } else {
-        (dth.sin() / dth, (1.0 - dth.cos()) / dth)
-    };
+    let (fx, fy) =
+        if dth.abs() < 1e-9 { (1.0 - dth * dth / 6.0, dth / 2.0) } else { (dth.sin() / dth, (1.0 - dth.cos()) / dth) };
     let vx = twist.linear * dt;
     let vy = lateral * dt;
     let d = Vec2::new(fx * vx - fy * vy, fy * vx + fx * vy);
@@ -224,7 +247,9 @@ mod tests {
         // 1 m/s at π/2 rad/s for 1 s: a quarter circle of radius 2/π.
         let p = advance(Pose2::default(), Twist::new(1.0, std::f64::consts::FRAC_PI_2), 0.0, 1.0);
         let r = 2.0 / std::f64::consts::PI;
-        assert!((p.x - r).abs() < 1e-12 && (p.y - r).abs() < 1e-12 && (p.theta - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        assert!(
+            (p.x - r).abs() < 1e-12 && (p.y - r).abs() < 1e-12 && (p.theta - std::f64::consts::FRAC_PI_2).abs() < 1e-12
+        );
     }
 
     #[test]
@@ -248,7 +273,8 @@ mod tests {
         assert!(straight > 0.0, "slip must make odometry drift");
         assert!(turning > 2.0 * straight, "turning drift {turning} vs straight {straight}");
         let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let none = integrate(&RobotState::at(Pose2::default()), Twist::new(1.0, 1.0), &p, &SlipModel::none(), 0.01, &mut rng);
+        let none =
+            integrate(&RobotState::at(Pose2::default()), Twist::new(1.0, 1.0), &p, &SlipModel::none(), 0.01, &mut rng);
         assert_eq!(none.truth, none.odom);
     }
 }

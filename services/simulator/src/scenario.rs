@@ -308,14 +308,17 @@ fn polygon(field: &str, pts: &[Point]) -> Result<Vec<Vec2>, ScenarioError> {
 }
 
 fn class_name(field: &str, class_id: i32) -> Result<&'static str, ScenarioError> {
-    vlnav_proto::coco::name(class_id)
-        .ok_or_else(|| ScenarioError::invalid(field, format!("{class_id} is not a COCO-80 class id (0 person … 79 toothbrush)")))
+    vlnav_proto::coco::name(class_id).ok_or_else(|| {
+        ScenarioError::invalid(field, format!("{class_id} is not a COCO-80 class id (0 person … 79 toothbrush)"))
+    })
 }
 
 fn check_identity(field: &str, identity: &Option<String>) -> Result<String, ScenarioError> {
     match identity {
         None => Ok(String::new()),
-        Some(s) if s.trim().is_empty() => Err(ScenarioError::invalid(field, "identity must not be empty (omit it instead)")),
+        Some(s) if s.trim().is_empty() => {
+            Err(ScenarioError::invalid(field, "identity must not be empty (omit it instead)"))
+        }
         Some(s) => Ok(s.trim().to_lowercase()),
     }
 }
@@ -335,12 +338,13 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
     let mut solids = Vec::new();
     let mut markings = Vec::new();
     let mut pedestrians = Vec::new();
-    let mut next_entity = |name: String, class_id: i32, identity: String, semantic: Semantic| -> Result<u16, ScenarioError> {
-        let id = entities.len() + 1;
-        let id = u16::try_from(id).map_err(|_| ScenarioError::invalid("objects", "more than 65534 entities"))?;
-        entities.push(Entity { instance_id: id, name, class_id, identity, semantic });
-        Ok(id)
-    };
+    let mut next_entity =
+        |name: String, class_id: i32, identity: String, semantic: Semantic| -> Result<u16, ScenarioError> {
+            let id = entities.len() + 1;
+            let id = u16::try_from(id).map_err(|_| ScenarioError::invalid("objects", "more than 65534 entities"))?;
+            entities.push(Entity { instance_id: id, name, class_id, identity, semantic });
+            Ok(id)
+        };
 
     for (i, w) in f.walls.iter().enumerate() {
         let field = format!("walls[{i}]");
@@ -357,7 +361,10 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
             let (a, b) = (pts[s], pts[(s + 1) % n]);
             let len = b.sub(a).norm();
             if len < 1e-6 {
-                return Err(ScenarioError::invalid(format!("{field}.path[{}]", (s + 1) % n), "repeats the previous point"));
+                return Err(ScenarioError::invalid(
+                    format!("{field}.path[{}]", (s + 1) % n),
+                    "repeats the previous point",
+                ));
             }
             // Extend each segment by half the thickness so corners close.
             let d = b.sub(a).scale(w.thickness / 2.0 / len);
@@ -373,8 +380,18 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
         let field = format!("obstacles[{i}]");
         let poly = polygon(&format!("{field}.polygon"), &o.polygon)?;
         check_positive(&format!("{field}.height"), o.height, 50.0)?;
-        let id = next_entity(o.name.clone().unwrap_or_else(|| format!("obstacle {i}")), -1, String::new(), Semantic::Obstacle)?;
-        solids.push(Solid { entity: id, shape: Shape::Polygon(poly), height: o.height, color: o.color.unwrap_or(OBSTACLE_COLOR) });
+        let id = next_entity(
+            o.name.clone().unwrap_or_else(|| format!("obstacle {i}")),
+            -1,
+            String::new(),
+            Semantic::Obstacle,
+        )?;
+        solids.push(Solid {
+            entity: id,
+            shape: Shape::Polygon(poly),
+            height: o.height,
+            color: o.color.unwrap_or(OBSTACLE_COLOR),
+        });
     }
     for (i, o) in f.objects.iter().enumerate() {
         let field = format!("objects[{i}]");
@@ -391,7 +408,9 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
         check_finite(&format!("{field}.yaw"), o.yaw)?;
         let shape = match o.shape {
             ShapeKind::Box => {
-                let size = o.size.ok_or_else(|| ScenarioError::invalid(format!("{field}.size"), "a box needs size = [length, width]"))?;
+                let size = o.size.ok_or_else(|| {
+                    ScenarioError::invalid(format!("{field}.size"), "a box needs size = [length, width]")
+                })?;
                 check_positive(&format!("{field}.size[0]"), size[0], 100.0)?;
                 check_positive(&format!("{field}.size[1]"), size[1], 100.0)?;
                 if o.radius.is_some() {
@@ -400,7 +419,9 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
                 Shape::Polygon(box_polygon(centre, size, o.yaw))
             }
             ShapeKind::Cylinder => {
-                let r = o.radius.ok_or_else(|| ScenarioError::invalid(format!("{field}.radius"), "a cylinder needs a radius"))?;
+                let r = o
+                    .radius
+                    .ok_or_else(|| ScenarioError::invalid(format!("{field}.radius"), "a cylinder needs a radius"))?;
                 check_positive(&format!("{field}.radius"), r, 50.0)?;
                 if o.size.is_some() {
                     return Err(ScenarioError::invalid(format!("{field}.size"), "a cylinder has no size (use radius)"));
@@ -408,7 +429,8 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
                 Shape::Circle { centre, radius: r }
             }
         };
-        let id = next_entity(o.name.clone().unwrap_or_else(|| cls.to_string()), o.class_id, identity, Semantic::Object)?;
+        let id =
+            next_entity(o.name.clone().unwrap_or_else(|| cls.to_string()), o.class_id, identity, Semantic::Object)?;
         solids.push(Solid { entity: id, shape, height: o.height, color: o.color });
     }
     for (i, m) in f.markings.iter().enumerate() {
@@ -435,13 +457,17 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
             }
             shapes.push(Shape::Polygon(segment_quad(pts[s], pts[s + 1], c.width)));
         }
-        let id = next_entity(c.name.clone().unwrap_or_else(|| format!("cable {i}")), -1, String::new(), Semantic::Cable)?;
+        let id =
+            next_entity(c.name.clone().unwrap_or_else(|| format!("cable {i}")), -1, String::new(), Semantic::Cable)?;
         markings.push(Marking { entity: id, shapes, color: c.color.unwrap_or(CABLE_COLOR) });
     }
     for (i, p) in f.pedestrians.iter().enumerate() {
         let field = format!("pedestrians[{i}]");
         if p.waypoints.len() < 2 {
-            return Err(ScenarioError::invalid(format!("{field}.waypoints"), "a pedestrian needs at least 2 waypoints"));
+            return Err(ScenarioError::invalid(
+                format!("{field}.waypoints"),
+                "a pedestrian needs at least 2 waypoints",
+            ));
         }
         let wps = points(&format!("{field}.waypoints"), &p.waypoints)?;
         for k in 1..wps.len() {
@@ -453,9 +479,20 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
         check_positive(&format!("{field}.radius"), p.radius, 2.0)?;
         check_positive(&format!("{field}.height"), p.height, 3.0)?;
         let identity = check_identity(&format!("{field}.identity"), &p.identity)?;
-        let name = p.name.clone().unwrap_or_else(|| if identity.is_empty() { format!("pedestrian {i}") } else { identity.clone() });
+        let name = p
+            .name
+            .clone()
+            .unwrap_or_else(|| if identity.is_empty() { format!("pedestrian {i}") } else { identity.clone() });
         let id = next_entity(name, 0, identity, Semantic::Object)?;
-        pedestrians.push(Pedestrian::new(id, wps, p.speed, p.looped, p.radius, p.height, p.color.unwrap_or(PERSON_COLOR)));
+        pedestrians.push(Pedestrian::new(
+            id,
+            wps,
+            p.speed,
+            p.looped,
+            p.radius,
+            p.height,
+            p.color.unwrap_or(PERSON_COLOR),
+        ));
     }
 
     let camera = camera_config(&f.camera)?;
@@ -472,13 +509,22 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
             let e = &entities[s.entity as usize - 1];
             return Err(ScenarioError::invalid(
                 "robot.start",
-                format!("the robot's footprint at ({}, {}) overlaps {} `{}`", start.x, start.y, e.semantic.as_str(), e.name),
+                format!(
+                    "the robot's footprint at ({}, {}) overlaps {} `{}`",
+                    start.x,
+                    start.y,
+                    e.semantic.as_str(),
+                    e.name
+                ),
             ));
         }
     }
     for p in &pedestrians {
         if footprint.overlaps(&p.shape_at(0.0)) {
-            return Err(ScenarioError::invalid("robot.start", "the robot's footprint overlaps a pedestrian's starting point"));
+            return Err(ScenarioError::invalid(
+                "robot.start",
+                "the robot's footprint overlaps a pedestrian's starting point",
+            ));
         }
     }
     Ok(World {
@@ -502,7 +548,9 @@ fn camera_config(c: &CameraSpec) -> Result<CameraConfig, ScenarioError> {
         let h = c.height.unwrap_or(cam.height);
         cam = cam.with_resolution(w, h).map_err(|m| ScenarioError::invalid("camera.width", m))?;
     }
-    for (k, v, slot) in [("fx", c.fx, &mut cam.fx), ("fy", c.fy, &mut cam.fy), ("cx", c.cx, &mut cam.cx), ("cy", c.cy, &mut cam.cy)] {
+    for (k, v, slot) in
+        [("fx", c.fx, &mut cam.fx), ("fy", c.fy, &mut cam.fy), ("cx", c.cx, &mut cam.cx), ("cy", c.cy, &mut cam.cy)]
+    {
         if let Some(v) = v {
             check_finite(&format!("camera.{k}"), v)?;
             *slot = v;
@@ -578,7 +626,9 @@ color = [90, 60, 30]
         let e = parse(&bowtie).unwrap_err();
         assert_eq!(e.field(), Some("obstacles[0].polygon"));
         assert!(e.to_string().contains("not simple"), "{e}");
-        let two = format!("{BASE}\n[[markings]]\nkind = \"restricted_zone\"\npolygon = [[1, 1], [2, 2]]\ncolor = [200, 0, 0]\n");
+        let two = format!(
+            "{BASE}\n[[markings]]\nkind = \"restricted_zone\"\npolygon = [[1, 1], [2, 2]]\ncolor = [200, 0, 0]\n"
+        );
         assert_eq!(err_field(&two), "markings[0].polygon");
         let flat = format!("{BASE}\n[[obstacles]]\npolygon = [[1, 1], [2, 2], [3, 3]]\nheight = 1.0\n");
         assert!(parse(&flat).unwrap_err().to_string().contains("zero area"));

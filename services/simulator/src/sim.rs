@@ -157,7 +157,8 @@ impl Simulator {
     }
 
     fn solids_overlapping(&self, rect: &OrientedRect) -> Vec<u16> {
-        let mut ids: Vec<u16> = self.world.solids.iter().filter(|s| rect.overlaps(&s.shape)).map(|s| s.entity).collect();
+        let mut ids: Vec<u16> =
+            self.world.solids.iter().filter(|s| rect.overlaps(&s.shape)).map(|s| s.entity).collect();
         ids.extend(self.world.pedestrians.iter().filter(|p| rect.overlaps(&p.shape_at(self.time))).map(|p| p.entity));
         ids.sort_unstable();
         ids.dedup();

@@ -80,7 +80,15 @@ pub struct Pedestrian {
 }
 
 impl Pedestrian {
-    pub fn new(entity: u16, waypoints: Vec<Vec2>, speed: f64, looped: bool, radius: f64, height: f64, color: [u8; 3]) -> Self {
+    pub fn new(
+        entity: u16,
+        waypoints: Vec<Vec2>,
+        speed: f64,
+        looped: bool,
+        radius: f64,
+        height: f64,
+        color: [u8; 3],
+    ) -> Self {
         let mut route = waypoints.clone();
         if looped {
             route.push(waypoints[0]);

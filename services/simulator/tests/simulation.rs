@@ -47,7 +47,12 @@ fn run_commands(sim: &mut Simulator, commands: &[(Twist, usize)], frames: &mut V
 
 #[test]
 fn same_scenario_seed_and_commands_give_a_bit_identical_run() {
-    let commands = [(Twist::new(0.8, 0.0), 20), (Twist::new(0.5, 1.2), 15), (Twist::new(1.0, -0.4), 25), (Twist::new(0.0, 2.0), 10)];
+    let commands = [
+        (Twist::new(0.8, 0.0), 20),
+        (Twist::new(0.5, 1.2), 15),
+        (Twist::new(1.0, -0.4), 25),
+        (Twist::new(0.0, 2.0), 10),
+    ];
     let run = |seed: u64| {
         let mut sim = Simulator::new(load_scenario("demo").unwrap(), seed);
         sim.set_camera(sim.camera().clone().with_resolution(160, 120).unwrap());
@@ -90,7 +95,10 @@ fn rendering_matches_the_geometry_it_was_given() {
     assert_eq!(e.semantic, Semantic::RestrictedZone);
     assert!((depth as f64 - z_floor * 1000.0).abs() < 15.0, "floor depth {depth}");
     let (h, s, v) = hsv(rgb);
-    assert!((h <= 10.0 || h >= 170.0) && s >= 120.0 && v >= 70.0, "red zone must pass an HSV red mask: {rgb:?} → {h} {s} {v}");
+    assert!(
+        (h <= 10.0 || h >= 170.0) && s >= 120.0 && v >= 70.0,
+        "red zone must pass an HSV red mask: {rgb:?} → {h} {s} {v}"
+    );
     // Floor just in front of the camera is closer than 0.3 m of depth? No —
     // the bottom row sees the floor at 0.6/(240.5/343) ≈ 0.86 m: valid.
     let (_, depth, label) = f.pixel(cu, cam.height - 1);
@@ -232,7 +240,8 @@ fn demo_makes_both_paper_instructions_meaningful() {
     let person = object_position(&w, "standing person");
     let chair = object_position(&w, "visitor chair");
     let bicycle = object_position(&w, "bicycle");
-    let persons_in_view = |f: &Frame| f.instances.iter().filter(|e| e.class_id == 0).map(|e| e.name.clone()).collect::<Vec<_>>();
+    let persons_in_view =
+        |f: &Frame| f.instances.iter().filter(|e| e.class_id == 0).map(|e| e.name.clone()).collect::<Vec<_>>();
 
     // Case 1: the statue is the one person in view at the start.
     let start = w.start;
@@ -266,7 +275,9 @@ fn demo_makes_both_paper_instructions_meaningful() {
     });
     assert!(found, "a scan to the right finds the chair");
     // The naive straight line from the person to the chair crosses the red zone.
-    let zone = &w.markings.iter().find(|m| w.entity(m.entity).unwrap().semantic == Semantic::RestrictedZone).unwrap().shapes[0];
+    let zone =
+        &w.markings.iter().find(|m| w.entity(m.entity).unwrap().semantic == Semantic::RestrictedZone).unwrap().shapes
+            [0];
     let crosses = (0..=100).any(|i| {
         let p = at_person.position().add(chair.sub(at_person.position()).scale(i as f64 / 100.0));
         OrientedRect::new(Pose2::new(p.x, p.y, at_person.theta), 0.988, 0.67).overlaps(zone)

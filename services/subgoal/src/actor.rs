@@ -7,9 +7,16 @@ use vlnav_runtime::actor::Mailbox;
 use crate::tracks::{Observation, TargetEstimate, TrackParams, Tracks};
 
 pub enum Msg {
-    Observe { key: String, obs: Observation, reply: oneshot::Sender<TargetEstimate> },
+    Observe {
+        key: String,
+        obs: Observation,
+        reply: oneshot::Sender<TargetEstimate>,
+    },
     /// Replies whether the track existed.
-    Reset { key: String, reply: oneshot::Sender<bool> },
+    Reset {
+        key: String,
+        reply: oneshot::Sender<bool>,
+    },
 }
 
 /// Spawns the track actor and returns its mailbox.

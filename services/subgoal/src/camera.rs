@@ -140,7 +140,8 @@ impl Projector {
             return None;
         }
         let d = depth_mm as f64 * 1e-3;
-        let ok = (self.depth_min_m <= 0.0 || d >= self.depth_min_m) && (self.depth_max_m <= 0.0 || d <= self.depth_max_m);
+        let ok =
+            (self.depth_min_m <= 0.0 || d >= self.depth_min_m) && (self.depth_max_m <= 0.0 || d <= self.depth_max_m);
         ok.then_some(d)
     }
 

@@ -155,9 +155,7 @@ pub struct BoxDepth {
 
 /// Too few valid depth pixels inside the box.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
-#[error(
-    "no depth: {valid} valid pixels inside the box (depth in ({min_m} m, {max_m} m)), at least {needed} needed"
-)]
+#[error("no depth: {valid} valid pixels inside the box (depth in ({min_m} m, {max_m} m)), at least {needed} needed")]
 pub struct NoDepth {
     pub valid: usize,
     pub needed: usize,
@@ -323,7 +321,13 @@ mod tests {
         // few invalid and too-close pixels inside.
         let bytes = filled(&cam, |u, v| {
             if (300..340).contains(&u) && (200..280).contains(&v) {
-                if u == 320 { 0.0 } else if u == 321 { 0.3 } else { 3.0 + 0.001 * ((u + v) % 3) as f64 }
+                if u == 320 {
+                    0.0
+                } else if u == 321 {
+                    0.3
+                } else {
+                    3.0 + 0.001 * ((u + v) % 3) as f64
+                }
             } else {
                 8.0
             }

@@ -65,7 +65,11 @@ fn finite(field: &str, v: f64) -> Result<f64, InvalidField> {
 /// A required planar pose; every component must be finite.
 pub fn pose_from_proto(p: Option<&pb::Pose2D>, field: &str) -> Result<Pose2, InvalidField> {
     let p = p.ok_or_else(|| InvalidField::new(field, "is required (x, y in metres, theta in radians)"))?;
-    Ok(Pose2::new(finite(&format!("{field}.x"), p.x)?, finite(&format!("{field}.y"), p.y)?, finite(&format!("{field}.theta"), p.theta)?))
+    Ok(Pose2::new(
+        finite(&format!("{field}.x"), p.x)?,
+        finite(&format!("{field}.y"), p.y)?,
+        finite(&format!("{field}.theta"), p.theta)?,
+    ))
 }
 
 /// Depth bounds used when the frame's `CameraInfo` leaves them at 0.
@@ -77,7 +81,11 @@ pub struct DepthDefaults {
 
 /// `frame.camera` → [`Camera`]: positive size and focal lengths, finite
 /// numbers everywhere; a missing mount is a level camera at the origin.
-pub fn camera_from_proto(info: Option<&pb::CameraInfo>, field: &str, defaults: DepthDefaults) -> Result<Camera, InvalidField> {
+pub fn camera_from_proto(
+    info: Option<&pb::CameraInfo>,
+    field: &str,
+    defaults: DepthDefaults,
+) -> Result<Camera, InvalidField> {
     let info = info.ok_or_else(|| InvalidField::new(field, "is required (size, intrinsics, mount, depth range)"))?;
     if info.width == 0 || info.height == 0 {
         return Err(InvalidField::new(
@@ -91,7 +99,10 @@ pub fn camera_from_proto(info: Option<&pb::CameraInfo>, field: &str, defaults: D
         .ok_or_else(|| InvalidField::new(format!("{field}.intrinsics"), "is required (fx, fy, cx, cy in pixels)"))?;
     for (name, v) in [("fx", k.fx), ("fy", k.fy)] {
         if !(v.is_finite() && v > 0.0) {
-            return Err(InvalidField::new(format!("{field}.intrinsics.{name}"), format!("must be a positive focal length in pixels, got {v}")));
+            return Err(InvalidField::new(
+                format!("{field}.intrinsics.{name}"),
+                format!("must be a positive focal length in pixels, got {v}"),
+            ));
         }
     }
     let cx = finite(&format!("{field}.intrinsics.cx"), k.cx)?;
@@ -130,15 +141,24 @@ pub fn camera_from_proto(info: Option<&pb::CameraInfo>, field: &str, defaults: D
 }
 
 /// The frame's depth image, checked against the camera size.
-pub fn depth_from_proto<'a>(depth: Option<&'a pb::DepthImage>, cam: &Camera, field: &str) -> Result<DepthView<'a>, InvalidField> {
-    let d = depth.ok_or_else(|| InvalidField::new(field, "is required (little-endian u16 millimetres, width × height)"))?;
+pub fn depth_from_proto<'a>(
+    depth: Option<&'a pb::DepthImage>,
+    cam: &Camera,
+    field: &str,
+) -> Result<DepthView<'a>, InvalidField> {
+    let d =
+        depth.ok_or_else(|| InvalidField::new(field, "is required (little-endian u16 millimetres, width × height)"))?;
     if d.width != cam.width || d.height != cam.height {
         return Err(InvalidField::new(
             format!("{field}.width/height"),
-            format!("must match the camera's {}x{} (depth aligned to colour), got {}x{}", cam.width, cam.height, d.width, d.height),
+            format!(
+                "must match the camera's {}x{} (depth aligned to colour), got {}x{}",
+                cam.width, cam.height, d.width, d.height
+            ),
         ));
     }
-    DepthView::new(d.width, d.height, &d.data_mm).map_err(|e: DepthSizeError| InvalidField::new(format!("{field}.data_mm"), e.to_string()))
+    DepthView::new(d.width, d.height, &d.data_mm)
+        .map_err(|e: DepthSizeError| InvalidField::new(format!("{field}.data_mm"), e.to_string()))
 }
 
 fn box_from_proto(b: Option<&pb::BoundingBox>, cam: &Camera) -> Result<PixelBox, InvalidField> {
@@ -152,13 +172,19 @@ fn box_from_proto(b: Option<&pb::BoundingBox>, cam: &Camera) -> Result<PixelBox,
     if b.x_max <= b.x_min || b.y_max <= b.y_min {
         return Err(InvalidField::new(
             "box",
-            format!("must have x_min < x_max and y_min < y_max, got ({}, {}, {}, {})", b.x_min, b.y_min, b.x_max, b.y_max),
+            format!(
+                "must have x_min < x_max and y_min < y_max, got ({}, {}, {}, {})",
+                b.x_min, b.y_min, b.x_max, b.y_max
+            ),
         ));
     }
     if b.x_max <= 0.0 || b.y_max <= 0.0 || b.x_min >= cam.width as f32 || b.y_min >= cam.height as f32 {
         return Err(InvalidField::new(
             "box",
-            format!("lies outside the {}x{} image: ({}, {}, {}, {})", cam.width, cam.height, b.x_min, b.y_min, b.x_max, b.y_max),
+            format!(
+                "lies outside the {}x{} image: ({}, {}, {}, {})",
+                cam.width, cam.height, b.x_min, b.y_min, b.x_max, b.y_max
+            ),
         ));
     }
     Ok(PixelBox { x_min: b.x_min as f64, y_min: b.y_min as f64, x_max: b.x_max as f64, y_max: b.y_max as f64 })
@@ -229,7 +255,10 @@ impl Subgoal {
         if r.track_key.trim().is_empty() {
             return Err(SubgoalError::invalid("track_key", "must name the target's track (e.g. \"<mission>/<step>\")"));
         }
-        let frame = r.frame.as_ref().ok_or_else(|| SubgoalError::invalid("frame", "is required (depth, camera and odom of the detection)"))?;
+        let frame = r
+            .frame
+            .as_ref()
+            .ok_or_else(|| SubgoalError::invalid("frame", "is required (depth, camera and odom of the detection)"))?;
         let stamp = finite("frame.stamp", frame.stamp)?;
         let cam = camera_from_proto(frame.camera.as_ref(), "frame.camera", self.depth_defaults)?;
         let depth = depth_from_proto(frame.depth.as_ref(), &cam, "frame.depth")?;
@@ -248,7 +277,10 @@ impl SubgoalService for Subgoal {
         Ok(Response::new(self.move_goal(request.get_ref())?))
     }
 
-    async fn target_goal(&self, request: Request<pb::TargetGoalRequest>) -> Result<Response<pb::TargetGoalResponse>, Status> {
+    async fn target_goal(
+        &self,
+        request: Request<pb::TargetGoalRequest>,
+    ) -> Result<Response<pb::TargetGoalResponse>, Status> {
         let r = request.into_inner();
         let obs = self.observation(&r)?;
         let key = r.track_key;
@@ -256,7 +288,10 @@ impl SubgoalService for Subgoal {
         Ok(Response::new(estimate_to_proto(estimate)))
     }
 
-    async fn reset_track(&self, request: Request<pb::ResetTrackRequest>) -> Result<Response<pb::ResetTrackResponse>, Status> {
+    async fn reset_track(
+        &self,
+        request: Request<pb::ResetTrackRequest>,
+    ) -> Result<Response<pb::ResetTrackResponse>, Status> {
         let key = request.into_inner().track_key;
         if key.trim().is_empty() {
             return Err(SubgoalError::invalid("track_key", "must name the track to forget").into());

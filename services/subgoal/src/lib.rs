@@ -29,7 +29,11 @@ pub const DEFAULT_PORT: u16 = vlnav_runtime::ports::SUBGOAL;
 #[derive(clap::Args, Clone, Debug)]
 pub struct Options {
     /// Stopping distance d_s for visual targets when a request gives 0, m.
-    #[arg(long = "subgoal-default-stop-distance", env = "VLNAV_SUBGOAL_DEFAULT_STOP_DISTANCE_M", default_value_t = 2.0)]
+    #[arg(
+        long = "subgoal-default-stop-distance",
+        env = "VLNAV_SUBGOAL_DEFAULT_STOP_DISTANCE_M",
+        default_value_t = 2.0
+    )]
     pub default_stop_distance_m: f64,
     /// Smallest position tolerance of a MOVE goal (raised to the step's d_s), m.
     #[arg(long = "subgoal-move-tolerance", env = "VLNAV_SUBGOAL_MOVE_TOLERANCE_M", default_value_t = 0.25)]
@@ -114,13 +118,21 @@ impl Options {
             self.depth_min_m >= 0.0 && self.depth_min_m < self.depth_max_m,
             "--subgoal-depth-min must be ≥ 0 and below --subgoal-depth-max"
         );
-        anyhow::ensure!(self.window > 0 && self.max_tracks > 0, "--subgoal-window and --subgoal-max-tracks must be positive");
+        anyhow::ensure!(
+            self.window > 0 && self.max_tracks > 0,
+            "--subgoal-window and --subgoal-max-tracks must be positive"
+        );
         Ok(())
     }
 
     pub fn track_params(&self) -> TrackParams {
         TrackParams {
-            fixed: FixedParams { window: self.window, gate_k: self.gate_k, gate_floor_m: self.gate_floor_m, ..FixedParams::default() },
+            fixed: FixedParams {
+                window: self.window,
+                gate_k: self.gate_k,
+                gate_floor_m: self.gate_floor_m,
+                ..FixedParams::default()
+            },
             moving: MovingParams { accel_sigma: self.accel_sigma, ..MovingParams::default() },
             default_stop_distance_m: self.default_stop_distance_m,
             goal_tolerance_m: self.target_tolerance_m,
@@ -131,7 +143,10 @@ impl Options {
 }
 
 /// Spawns the track actor and returns the service, ready to serve.
-pub async fn services(opts: &Options, server: &vlnav_runtime::ServerConfig) -> anyhow::Result<vlnav_runtime::ServiceSet> {
+pub async fn services(
+    opts: &Options,
+    server: &vlnav_runtime::ServerConfig,
+) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     opts.validate()?;
     let svc = Subgoal {
         mailbox: actor::spawn(opts.track_params()),

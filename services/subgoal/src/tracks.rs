@@ -123,7 +123,8 @@ impl Tracks {
     pub fn observe(&mut self, key: &str, obs: &Observation) -> TargetEstimate {
         self.clock += 1;
         let d_s = if obs.d_s > 0.0 { obs.d_s } else { self.params.default_stop_distance_m };
-        let kind_matches = |t: &Track| matches!((&t.filter, obs.moving), (Filter::Fixed(_), false) | (Filter::Moving(_), true));
+        let kind_matches =
+            |t: &Track| matches!((&t.filter, obs.moving), (Filter::Fixed(_), false) | (Filter::Moving(_), true));
         // A track asked for with the other motion model starts over.
         if self.tracks.get(key).is_some_and(|t| !kind_matches(t)) {
             self.tracks.remove(key);
@@ -165,10 +166,14 @@ impl Tracks {
                 let r = f.add(p, obs.stamp, range);
                 (Some(r), if r.accepted { EstimateStatus::Ok } else { EstimateStatus::Outlier }, String::new())
             }
-            (Filter::Fixed(f), Err(e)) => (f.current(), EstimateStatus::NoDepth, format!("{e}; goal from earlier observations")),
-            (Filter::Moving(f), Err(e)) => {
-                (f.current(obs.stamp), EstimateStatus::NoDepth, format!("{e}; goal predicted from earlier observations"))
+            (Filter::Fixed(f), Err(e)) => {
+                (f.current(), EstimateStatus::NoDepth, format!("{e}; goal from earlier observations"))
             }
+            (Filter::Moving(f), Err(e)) => (
+                f.current(obs.stamp),
+                EstimateStatus::NoDepth,
+                format!("{e}; goal predicted from earlier observations"),
+            ),
         };
         let detail = match (status, &fused) {
             (EstimateStatus::Outlier, Some(r)) => format!(

@@ -73,7 +73,12 @@ async fn move_goal_turns_then_drives() {
     let mut s = start().await;
     let g = s
         .client
-        .move_goal(pb::MoveGoalRequest { anchor: Some(pose(1.0, 2.0, FRAC_PI_2)), f_dist: 4.0, yaw: FRAC_PI_2, d_s: 0.0 })
+        .move_goal(pb::MoveGoalRequest {
+            anchor: Some(pose(1.0, 2.0, FRAC_PI_2)),
+            f_dist: 4.0,
+            yaw: FRAC_PI_2,
+            d_s: 0.0,
+        })
         .await
         .unwrap()
         .into_inner();
@@ -101,7 +106,8 @@ async fn move_goal_rejects_bad_numbers() {
         .unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument);
     assert!(e.message().contains("anchor.x"), "{}", e.message());
-    let e = s.client.move_goal(pb::MoveGoalRequest { anchor: None, f_dist: 1.0, yaw: 0.0, d_s: 0.0 }).await.unwrap_err();
+    let e =
+        s.client.move_goal(pb::MoveGoalRequest { anchor: None, f_dist: 1.0, yaw: 0.0, d_s: 0.0 }).await.unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument);
     assert!(e.message().contains("anchor"));
     let e = s
@@ -119,7 +125,11 @@ async fn target_goal_back_projects_the_box_and_stops_short() {
     let f = frame((290, 210, 350, 270), 3.0, pose(2.0, 1.0, FRAC_PI_2), 10.0);
     let r = s
         .client
-        .target_goal(target_request("m1/2", f, bbox(CX as f32 - 60.0, CY as f32 - 60.0, CX as f32 + 60.0, CY as f32 + 60.0)))
+        .target_goal(target_request(
+            "m1/2",
+            f,
+            bbox(CX as f32 - 60.0, CY as f32 - 60.0, CX as f32 + 60.0, CY as f32 + 60.0),
+        ))
         .await
         .unwrap()
         .into_inner();
@@ -169,7 +179,8 @@ async fn box_without_depth_is_no_depth_not_nan() {
     // Everything at 12 m: beyond depth_max.
     let mut f = frame((0, 0, 0, 0), 0.0, pose(0.0, 0.0, 0.0), 1.0);
     f.depth.as_mut().unwrap().data_mm = encode_depth_mm(&vec![12.0; (W * H) as usize]);
-    let r = s.client.target_goal(target_request("none", f, bbox(100.0, 100.0, 200.0, 200.0))).await.unwrap().into_inner();
+    let r =
+        s.client.target_goal(target_request("none", f, bbox(100.0, 100.0, 200.0, 200.0))).await.unwrap().into_inner();
     assert_eq!(r.status(), pb::EstimateStatus::NoDepth);
     assert!(r.goal.is_none());
     assert!(r.detail.contains("no depth"), "{}", r.detail);

@@ -19,9 +19,13 @@ fn main() -> anyhow::Result<()> {
     let converted = vlnav_detector::tfjs::convert_files(model_json.as_ref())?;
     let files = NanoDetFiles::in_dir(&out_dir);
     // Write under temporary names first so an interrupted run leaves no half-written model.
-    let tmp = NanoDetFiles { graph: files.graph.with_extension("json.tmp"), weights: files.weights.with_extension("tmp") };
+    let tmp =
+        NanoDetFiles { graph: files.graph.with_extension("json.tmp"), weights: files.weights.with_extension("tmp") };
     vlnav_detector::tfjs::write(&converted, &tmp.graph, &tmp.weights)?;
-    let model = NanoDet::load(&NanoDetFiles { graph: tmp.graph.clone(), weights: tmp.weights.clone() }, &candle_core::Device::Cpu)?;
+    let model = NanoDet::load(
+        &NanoDetFiles { graph: tmp.graph.clone(), weights: tmp.weights.clone() },
+        &candle_core::Device::Cpu,
+    )?;
     let heads = model.forward(&[vec![0.0; 3 * 416 * 416]])?;
     let points: Vec<usize> = heads[0].iter().map(|(scores, _)| scores.len() / 80).collect();
     anyhow::ensure!(points == [2704, 676, 169], "unexpected head sizes {points:?}");

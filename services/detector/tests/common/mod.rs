@@ -27,7 +27,8 @@ pub type Running = Connected<DetectorServiceClient<tonic::transport::Channel>>;
 pub async fn start(opts: vlnav_detector::Options) -> Running {
     let cfg = ServerConfig::default();
     let set = vlnav_detector::services(&opts, &cfg).await.expect("detector services");
-    let make = |ch| DetectorServiceClient::new(ch).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
+    let make =
+        |ch| DetectorServiceClient::new(ch).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
     testing::start_client(&cfg, set, make).await.unwrap()
 }
 

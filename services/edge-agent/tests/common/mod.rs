@@ -50,7 +50,10 @@ type CommandStream = Pin<Box<dyn Stream<Item = Result<pb::GatewayCommand, Status
 impl FleetService for ScriptedGateway {
     type AttachStream = CommandStream;
 
-    async fn attach(&self, request: Request<Streaming<pb::EdgeMessage>>) -> Result<Response<Self::AttachStream>, Status> {
+    async fn attach(
+        &self,
+        request: Request<Streaming<pb::EdgeMessage>>,
+    ) -> Result<Response<Self::AttachStream>, Status> {
         let mut inbound = request.into_inner();
         let attach_no = {
             let mut n = self.attaches.lock().unwrap();
@@ -73,7 +76,11 @@ impl FleetService for ScriptedGateway {
                             log.lock().unwrap().hellos.push(h);
                             continue;
                         }
-                        other => log.lock().unwrap().protocol_errors.push(format!("first message was not a hello: {other:?}")),
+                        other => log
+                            .lock()
+                            .unwrap()
+                            .protocol_errors
+                            .push(format!("first message was not a hello: {other:?}")),
                     }
                     continue;
                 }
@@ -102,7 +109,9 @@ impl FleetService for ScriptedGateway {
                     }
                     Some(pb::edge_message::Kind::Odometry(o)) => log.lock().unwrap().odometry.push(o),
                     Some(pb::edge_message::Kind::Status(s)) => log.lock().unwrap().statuses.push(s),
-                    Some(pb::edge_message::Kind::Hello(_)) => log.lock().unwrap().protocol_errors.push("second hello".into()),
+                    Some(pb::edge_message::Kind::Hello(_)) => {
+                        log.lock().unwrap().protocol_errors.push("second hello".into())
+                    }
                     None => {}
                 }
             }

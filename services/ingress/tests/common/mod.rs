@@ -65,7 +65,9 @@ pub type Served = Connected<IngressServiceClient<Channel>>;
 pub async fn serve(opts: Options) -> Served {
     let cfg = ServerConfig::default();
     let services = vlnav_ingress::services(&opts, &cfg).await.expect("ingress services start");
-    testing::start_client(&cfg, services, IngressServiceClient::new).await.expect("ingress server starts and accepts a client")
+    testing::start_client(&cfg, services, IngressServiceClient::new)
+        .await
+        .expect("ingress server starts and accepts a client")
 }
 
 /// `data` as a stream of chunks of at most `chunk` bytes; the first names the format.

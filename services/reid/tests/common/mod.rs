@@ -17,7 +17,11 @@ pub fn models_dir() -> PathBuf {
 /// A model or asset file that must exist; fails the test naming the set-up step otherwise.
 pub fn require(rel: &str) -> PathBuf {
     let p = models_dir().join(rel);
-    assert!(p.is_file(), "{} is missing: run deploy/fetch-models.sh (it fetches and converts the test models and photos)", p.display());
+    assert!(
+        p.is_file(),
+        "{} is missing: run deploy/fetch-models.sh (it fetches and converts the test models and photos)",
+        p.display()
+    );
     p
 }
 
