@@ -9,8 +9,8 @@ use tokio::sync::{mpsc, oneshot};
 use tonic::Status;
 use tracing::Instrument;
 use vlnav_proto::v1::{
-    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, MissionState, OdometryUpdate, RobotInfo,
-    SensorFrame, Twist2D, VelocityCommand, gateway_command,
+    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, OdometryUpdate, RobotInfo, SensorFrame, Twist2D,
+    VelocityCommand, gateway_command,
 };
 use vlnav_runtime::actor::Mailbox;
 
@@ -204,6 +204,12 @@ impl Fleet {
     }
 }
 
+fn clear_active(info: &Mutex<RobotInfo>) {
+    if let Ok(mut i) = info.lock() {
+        i.active_mission_id.clear();
+    }
+}
+
 struct RobotActor {
     robot_id: String,
     fleet: Arc<Fleet>,
@@ -323,13 +329,9 @@ impl RobotActor {
                     Some(run) if run.mission_id == mission_id => {
                         let ctx =
                             Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
-                        run.finish(
-                            &ctx,
-                            MissionState::Cancelled,
-                            "cancelled by the user; the robot was stopped".into(),
-                        );
+                        clear_active(&self.info);
+                        run.cancel(&ctx);
                         self.run = None;
-                        self.update(|i| i.active_mission_id.clear());
                         Ok(())
                     }
                     _ => Err(Status::failed_precondition(format!(
@@ -375,8 +377,12 @@ impl RobotActor {
                 let tick = run.on_frame(&ctx, &frame).await;
                 let id = run.mission_id.clone();
                 if tick.finished.is_some() {
+                    // The robot is free before anyone can read that the mission ended.
+                    clear_active(&self.info);
+                    run.flush(&ctx);
                     self.run = None;
-                    self.update(|i| i.active_mission_id.clear());
+                } else {
+                    run.flush(&ctx);
                 }
                 (tick.twist, tick.active, tick.span, id)
             }

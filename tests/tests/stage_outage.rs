@@ -59,6 +59,9 @@ async fn a_stage_that_stays_down_fails_the_mission_cleanly() {
     // Everyone else is still served.
     let mut fleet = FleetServiceClient::connect(t.uri()).await.unwrap();
     let robots = fleet.list_robots(ListRobotsRequest {}).await.unwrap().into_inner().robots;
-    assert!(robots.iter().any(|r| r.robot_id == "husky-1" && r.connected && r.active_mission_id.is_empty()));
+    assert!(
+        robots.iter().any(|r| r.robot_id == "husky-1" && r.connected && r.active_mission_id.is_empty()),
+        "husky-1 is attached and free again: {robots:?}"
+    );
     t.stack.shutdown().await.unwrap();
 }

@@ -1,0 +1,435 @@
+//! The state machine's port to the stage services: each [`Request`] becomes
+//! the gRPC calls that answer it, and every generated type is converted here,
+//! once, at the edge.
+
+use nalgebra::Vector3;
+use vlnav_proto::v1 as pb;
+
+use super::machine::{MoveQuery, PlannerReply, Reply, Request, StageFailure};
+use super::model::*;
+use crate::pipeline::Pipeline;
+
+fn stage(stage: &'static str) -> impl FnOnce(tonic::Status) -> StageFailure {
+    move |s| StageFailure { stage, message: s.message().to_string() }
+}
+
+/// The stages, over gRPC, for one robot and one frame.
+pub struct Stages<'a> {
+    pub pipeline: &'a Pipeline,
+    pub robot_id: &'a str,
+    pub frame: &'a pb::RgbdFrame,
+    /// This frame's no-go points from the segmenter, for its local-planner call.
+    pub no_go: Vec<pb::Point3>,
+}
+
+impl Stages<'_> {
+    pub async fn call(&mut self, request: Request) -> Result<Reply, StageFailure> {
+        let pipeline = self.pipeline;
+        match request {
+            Request::StartStep { move_goal, .. } => {
+                pipeline
+                    .local_planner
+                    .clone()
+                    .reset_robot(pb::ResetRobotRequest { robot_id: self.robot_id.to_string() })
+                    .await
+                    .map_err(stage("local-planner"))?;
+                let goal = match move_goal {
+                    Some(q) => Some(self.move_goal(q).await?),
+                    None => None,
+                };
+                Ok(Reply::StepStarted { goal })
+            }
+            Request::Perceive { detect } => {
+                let segment = self.segment();
+                let boxes = match detect {
+                    Some((class_id, min_score)) => {
+                        let mut detector = pipeline.detector.clone();
+                        let request =
+                            pb::DetectRequest { frame: Some(self.frame.clone()), class_ids: vec![class_id], min_score };
+                        let (detected, no_go) = tokio::join!(detector.detect(request), segment);
+                        let boxes = detected.map_err(stage("detector"))?.into_inner().boxes;
+                        self.no_go = no_go?;
+                        boxes.iter().map(detection_from_proto).collect()
+                    }
+                    None => {
+                        self.no_go = segment.await?;
+                        Vec::new()
+                    }
+                };
+                Ok(Reply::Perceived { boxes })
+            }
+            Request::Identify { boxes, name } => {
+                let identities = pipeline
+                    .reid
+                    .clone()
+                    .identify(pb::IdentifyRequest {
+                        frame: Some(self.frame.clone()),
+                        boxes: boxes.iter().map(detection_to_proto).collect(),
+                        threshold: 0.0,
+                        name,
+                    })
+                    .await
+                    .map_err(stage("reid"))?
+                    .into_inner()
+                    .identities;
+                Ok(Reply::Identified(
+                    identities
+                        .into_iter()
+                        .map(|i| Identity {
+                            box_index: i.box_index,
+                            name: i.name,
+                            similarity: i.similarity,
+                            matched: i.matched,
+                        })
+                        .collect(),
+                ))
+            }
+            Request::Locate { track_key, detection, d_s, moving } => {
+                let est = pipeline
+                    .subgoal
+                    .clone()
+                    .target_goal(pb::TargetGoalRequest {
+                        track_key,
+                        frame: Some(depth_only(self.frame)),
+                        r#box: Some(detection_to_proto(&detection)),
+                        d_s,
+                        moving,
+                    })
+                    .await
+                    .map_err(stage("subgoal"))?
+                    .into_inner();
+                let status = match pb::EstimateStatus::try_from(est.status) {
+                    Ok(pb::EstimateStatus::Ok) => EstimateStatus::Ok,
+                    Ok(pb::EstimateStatus::NoDepth) => EstimateStatus::NoDepth,
+                    Ok(pb::EstimateStatus::Outlier) => EstimateStatus::Outlier,
+                    _ => EstimateStatus::Unspecified,
+                };
+                Ok(Reply::Located(Estimate {
+                    status,
+                    goal: est.goal.as_ref().map(goal_from_proto),
+                    fused_target: est.fused_target.map(|p| Vector3::new(p.x, p.y, p.z)),
+                    range_m: est.range_m,
+                }))
+            }
+            Request::MoveGoal(q) => Ok(Reply::Goal(self.move_goal(q).await?)),
+            Request::Drive { goal } => {
+                let plan = pipeline
+                    .local_planner
+                    .clone()
+                    .plan_step(pb::PlanStepRequest {
+                        robot_id: self.robot_id.to_string(),
+                        frame: Some(depth_only(self.frame)),
+                        goal: Some(goal_to_proto(&goal)),
+                        no_go_points: self.no_go.clone(),
+                        max_speed: 0.0,
+                    })
+                    .await
+                    .map_err(stage("local-planner"))?
+                    .into_inner();
+                let status = match pb::LocalPlanStatus::try_from(plan.status) {
+                    Ok(pb::LocalPlanStatus::Moving) => DriveStatus::Moving,
+                    Ok(pb::LocalPlanStatus::Rotating) => DriveStatus::Rotating,
+                    Ok(pb::LocalPlanStatus::Reached) => DriveStatus::Reached,
+                    Ok(pb::LocalPlanStatus::Blocked) => DriveStatus::Blocked,
+                    Ok(pb::LocalPlanStatus::NoProgress) => DriveStatus::NoProgress,
+                    _ => DriveStatus::Unspecified,
+                };
+                Ok(Reply::Driven(DriveAnswer {
+                    status,
+                    cmd: plan.cmd.map_or(Twist::ZERO, |c| Twist { linear: c.linear, angular: c.angular }),
+                    path_id: plan.path_id,
+                    distance_to_goal: plan.distance_to_goal,
+                    heading_error: plan.heading_error,
+                    free_paths: plan.free_paths,
+                }))
+            }
+        }
+    }
+
+    async fn move_goal(&self, q: MoveQuery) -> Result<Goal, StageFailure> {
+        let goal = self
+            .pipeline
+            .subgoal
+            .clone()
+            .move_goal(pb::MoveGoalRequest {
+                anchor: Some(pose_to_proto(&q.anchor)),
+                f_dist: q.f_dist,
+                yaw: q.yaw,
+                d_s: q.d_s,
+            })
+            .await
+            .map_err(stage("subgoal"))?
+            .into_inner();
+        Ok(goal_from_proto(&goal))
+    }
+
+    fn segment(&self) -> impl Future<Output = Result<Vec<pb::Point3>, StageFailure>> + use<> {
+        let mut segmenter = self.pipeline.segmenter.clone();
+        let request = pb::SegmentRequest {
+            frame: Some(self.frame.clone()),
+            classes: vec![],
+            return_mask: false,
+            point_stride: 0,
+        };
+        async move { Ok(segmenter.segment(request).await.map_err(stage("segmenter"))?.into_inner().virtual_points) }
+    }
+}
+
+/// The frame with only what geometry needs (depth, camera, pose).
+fn depth_only(f: &pb::RgbdFrame) -> pb::RgbdFrame {
+    pb::RgbdFrame {
+        robot_id: f.robot_id.clone(),
+        seq: f.seq,
+        stamp: f.stamp,
+        camera: f.camera,
+        rgb: None,
+        depth: f.depth.clone(),
+        odom: f.odom,
+        odom_twist: f.odom_twist,
+        labels: None,
+    }
+}
+
+pub fn pose_from_proto(p: &pb::Pose2D) -> Pose2 {
+    Pose2 { x: p.x, y: p.y, theta: p.theta }
+}
+
+pub fn pose_to_proto(p: &Pose2) -> pb::Pose2D {
+    pb::Pose2D { x: p.x, y: p.y, theta: p.theta }
+}
+
+fn goal_from_proto(g: &pb::Goal) -> Goal {
+    Goal {
+        pose: g.pose.as_ref().map(pose_from_proto).unwrap_or_default(),
+        position_tolerance: g.position_tolerance,
+        yaw_tolerance: g.yaw_tolerance,
+        rotation_only: g.rotation_only,
+    }
+}
+
+fn goal_to_proto(g: &Goal) -> pb::Goal {
+    pb::Goal {
+        pose: Some(pose_to_proto(&g.pose)),
+        position_tolerance: g.position_tolerance,
+        yaw_tolerance: g.yaw_tolerance,
+        rotation_only: g.rotation_only,
+    }
+}
+
+fn detection_from_proto(b: &pb::BoundingBox) -> Detection {
+    Detection {
+        x_min: b.x_min,
+        y_min: b.y_min,
+        x_max: b.x_max,
+        y_max: b.y_max,
+        class_id: b.class_id,
+        score: b.score,
+        label: b.label.clone(),
+    }
+}
+
+fn detection_to_proto(b: &Detection) -> pb::BoundingBox {
+    pb::BoundingBox {
+        x_min: b.x_min,
+        y_min: b.y_min,
+        x_max: b.x_max,
+        y_max: b.y_max,
+        class_id: b.class_id,
+        score: b.score,
+        label: b.label.clone(),
+    }
+}
+
+/// What the state machine sees of a sensor frame.
+pub fn frame_from_proto(f: &pb::RgbdFrame, truth: Option<&pb::SimTruth>) -> Frame {
+    let defaults = vlnav_subgoal::grpc::DepthDefaults { min_m: 0.0, max_m: 1e3 };
+    Frame {
+        seq: f.seq,
+        stamp: f.stamp,
+        pose: f.odom.as_ref().map(pose_from_proto).unwrap_or_default(),
+        camera: vlnav_subgoal::grpc::camera_from_proto(f.camera.as_ref(), "frame.camera", defaults).ok(),
+        truth: truth.map(|t| Truth {
+            pose: t.pose.as_ref().map(pose_from_proto),
+            path_length_m: t.path_length_m,
+            hard_collisions: t.hard_collisions,
+            soft_collisions: t.soft_collisions,
+            odom_origin: t.odom_origin.as_ref().map(pose_from_proto),
+        }),
+    }
+}
+
+pub fn action_from_proto(a: i32) -> Action {
+    match pb::ActionKind::try_from(a) {
+        Ok(pb::ActionKind::Move) => Action::Move,
+        Ok(pb::ActionKind::Find) => Action::Find,
+        Ok(pb::ActionKind::Follow) => Action::Follow,
+        Ok(pb::ActionKind::Return) => Action::Return,
+        _ => Action::Unspecified,
+    }
+}
+
+fn action_to_proto(a: Action) -> pb::ActionKind {
+    match a {
+        Action::Move => pb::ActionKind::Move,
+        Action::Find => pb::ActionKind::Find,
+        Action::Follow => pb::ActionKind::Follow,
+        Action::Return => pb::ActionKind::Return,
+        Action::Unspecified => pb::ActionKind::Unspecified,
+    }
+}
+
+pub fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
+    PlanStep {
+        action: action_from_proto(s.action),
+        desc: s.desc.clone(),
+        f_dist: s.f_dist,
+        yaw: s.yaw,
+        target: s.target.clone(),
+        class_id: s.class_id,
+        person: s.person.clone(),
+        d_s: s.d_s,
+        duration_s: s.duration_s,
+    }
+}
+
+pub fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
+    pb::ActionStep {
+        action: action_to_proto(s.action) as i32,
+        desc: s.desc.clone(),
+        f_dist: s.f_dist,
+        yaw: s.yaw,
+        target: s.target.clone(),
+        class_id: s.class_id,
+        person: s.person.clone(),
+        d_s: s.d_s,
+        duration_s: s.duration_s,
+    }
+}
+
+pub fn question_from_proto(c: &pb::Clarification) -> Question {
+    Question { question: c.question.clone(), reason: c.reason.clone(), options: c.options.clone() }
+}
+
+pub fn question_to_proto(q: &Question) -> pb::Clarification {
+    pb::Clarification { question: q.question.clone(), reason: q.reason.clone(), options: q.options.clone() }
+}
+
+pub fn outcome_to_proto(o: Outcome) -> pb::MissionState {
+    match o {
+        Outcome::Succeeded => pb::MissionState::Succeeded,
+        Outcome::Failed => pb::MissionState::Failed,
+        Outcome::Cancelled => pb::MissionState::Cancelled,
+    }
+}
+
+fn metrics_to_proto(m: &Metrics) -> pb::MissionMetrics {
+    pb::MissionMetrics {
+        duration_s: m.duration_s,
+        odom_path_length_m: m.odom_path_length_m,
+        steps_completed: m.steps_completed,
+        steps_total: m.steps_total,
+        frames: m.frames,
+        replans: m.replans,
+        has_ground_truth: m.has_ground_truth,
+        true_path_length_m: m.true_path_length_m,
+        hard_collisions: m.hard_collisions,
+        soft_collisions: m.soft_collisions,
+        final_error_m: m.final_error_m,
+    }
+}
+
+/// The planner's response as the state machine takes it.
+pub fn planner_reply(resp: pb::PlanResponse) -> Result<PlannerReply, tonic::Status> {
+    match resp.outcome {
+        Some(pb::plan_response::Outcome::Plan(p)) => {
+            Ok(PlannerReply::Plan { steps: p.steps.iter().map(step_from_proto).collect(), plan_json: resp.plan_json })
+        }
+        Some(pb::plan_response::Outcome::Clarification(c)) => Ok(PlannerReply::Question(question_from_proto(&c))),
+        None => Err(tonic::Status::internal("the planner returned neither a plan nor a question")),
+    }
+}
+
+/// A mission-record change that comes with an event.
+pub type Change = Box<dyn FnOnce(&mut pb::Mission) + Send>;
+
+/// An event as the mission store records it, with the change it makes to the mission.
+pub fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
+    use pb::mission_event::Kind;
+    match event {
+        Event::StepStarted { index, step, anchor } => (
+            Kind::StepStarted(pb::StepStarted {
+                index,
+                step: Some(step_to_proto(&step)),
+                anchor: Some(pose_to_proto(&anchor)),
+            }),
+            Box::new(move |m| {
+                m.current_step = index;
+                m.state = pb::MissionState::Running as i32;
+            }),
+        ),
+        Event::TargetSeen { index, detection, target, goal, range_m, identity, identity_similarity } => (
+            Kind::TargetSeen(pb::TargetSeen {
+                index,
+                r#box: Some(detection_to_proto(&detection)),
+                target: target.map(|t| pb::Point3 { x: t.x, y: t.y, z: t.z }),
+                goal: goal.as_ref().map(pose_to_proto),
+                range_m,
+                identity,
+                identity_similarity,
+            }),
+            Box::new(|_| {}),
+        ),
+        Event::Exploring { index, phase, attempt } => {
+            let phase = match phase {
+                ExplorePhase::Scan => "scan",
+                ExplorePhase::Search => "search",
+            };
+            (Kind::Exploring(pb::Exploring { index, phase: phase.into(), attempt }), Box::new(|_| {}))
+        }
+        Event::SubgoalReached { index, pose, goal, error_m } => (
+            Kind::SubgoalReached(pb::SubgoalReached {
+                index,
+                pose: Some(pose_to_proto(&pose)),
+                goal: Some(pose_to_proto(&goal)),
+                error_m,
+            }),
+            Box::new(move |m| m.current_step = index + 1),
+        ),
+        Event::StepFailed { index, reason } => (Kind::StepFailed(pb::StepFailed { index, reason }), Box::new(|_| {})),
+        Event::ClarificationNeeded { index, question } => {
+            let c = question_to_proto(&question);
+            let c2 = c.clone();
+            (
+                Kind::ClarificationNeeded(pb::ClarificationNeeded { index, clarification: Some(c) }),
+                Box::new(move |m| {
+                    m.state = pb::MissionState::AwaitingClarification as i32;
+                    m.clarification = Some(c2);
+                }),
+            )
+        }
+        Event::Replanned { plan, plan_json, answer, resume_index } => {
+            let full = pb::ActionPlan { steps: plan.iter().map(step_to_proto).collect() };
+            let (full2, json2) = (full.clone(), plan_json.clone());
+            (
+                Kind::Replanned(pb::Replanned { plan: Some(full), plan_json, answer, resume_index }),
+                Box::new(move |m| {
+                    m.plan = Some(full2);
+                    // The planner's JSON covers the revised steps (from resume_index on).
+                    if resume_index == 0 {
+                        m.plan_json = json2;
+                    }
+                    m.state = pb::MissionState::Running as i32;
+                    m.clarification = None;
+                }),
+            )
+        }
+        Event::Finished { outcome, reason, metrics, current_step } => (
+            Kind::Finished(pb::Finished {
+                state: outcome_to_proto(outcome) as i32,
+                reason,
+                metrics: Some(metrics_to_proto(&metrics)),
+            }),
+            Box::new(move |m| m.current_step = current_step),
+        ),
+    }
+}

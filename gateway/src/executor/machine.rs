@@ -1,0 +1,1057 @@
+//! The mission state machine: pure and synchronous, over domain types
+//! (`executor/model.rs`). It never calls a service. Each sensor frame it asks
+//! for what it needs from the stages, one [`Request`] at a time, and the
+//! adapter (`executor/grpc.rs`) answers each with a [`Reply`] — or with a
+//! [`StageFailure`] — until the machine is [`Next::Done`] with the frame's one
+//! velocity command. Every decision reads sensor time (`Frame::stamp`), so a
+//! test scripts a whole mission — confirmation, association, exploration,
+//! settling, asking, replanning — without any server, and a lockstep
+//! simulation replays exactly.
+//!
+//! - MOVE: goal relative to the anchor (the odometry pose re-anchored at the
+//!   last reached subgoal) → local planner until reached. After a reached MOVE
+//!   or FIND the anchor keeps that step's heading (the MOVE's course; facing
+//!   the FIND's target), not the heading the robot arrived with: "move 10 m,
+//!   then turn left 30°" turns from the direction of the first leg, and a
+//!   swerve or a settle at the end of a step would otherwise rotate everything
+//!   after it.
+//! - FIND: detector (+ ReID for a named person) → subgoal estimator (fused
+//!   target) → confirmed after `confirm_frames` consecutive sightings → local
+//!   planner until within d_s. Once a fixed target is confirmed, each frame's
+//!   box is the one where the fused target projects (camera model, odometry
+//!   pose), not the one nearest last frame's box: a turning robot shifts the
+//!   image by tens of pixels a frame, and a second chair swinging into view
+//!   must not take the first one's place. Unseen for `unseen_frames` → bounded
+//!   exploration (scan: turn 30°, look; then forward search legs) → a question
+//!   to the user → the user's answer → the planner revises the remaining plan.
+//! - FOLLOW: FIND with a moving-target track, kept for a while.
+//! - RETURN: back to the odometry pose where the mission started.
+//! - A stage that fails holds the robot and backs off in sensor time; one that
+//!   stays down for `STAGE_OUTAGE_S` fails the mission with the stage's name.
+
+use nalgebra::{Vector2, Vector3};
+use vlnav_subgoal::camera::Projector;
+use vlnav_subgoal::geometry::wrap_angle as wrap;
+
+use super::model::*;
+use crate::config::ExecutorParams;
+
+/// Sensor seconds a stage may stay unreachable before the mission fails.
+pub const STAGE_OUTAGE_S: f64 = 10.0;
+/// The first retry after a stage failed waits this long, sensor seconds; each
+/// further failure doubles the wait, up to `STAGE_RETRY_MAX_S`.
+const STAGE_RETRY_S: f64 = 0.1;
+const STAGE_RETRY_MAX_S: f64 = 1.0;
+/// A step makes progress when it gets this much closer to its goal, m …
+const PROGRESS_M: f64 = 0.1;
+/// … or, turning in place, this much closer to its heading, rad.
+const PROGRESS_RAD: f64 = 0.05;
+/// A drive that stops converging within this distance beyond its goal's
+/// tolerance has arrived: it settles instead of asking, m.
+const SETTLE_M: f64 = 0.25;
+/// Sensor seconds one scan turn of exploration may take before looking anyway.
+const SCAN_TURN_LIMIT_S: f64 = 4.0;
+/// A search leg slower than this on average ends early, m/s.
+const SEARCH_MIN_SPEED: f64 = 0.2;
+
+/// A goal relative to `anchor`: turn by `yaw`, then drive `f_dist` metres.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MoveQuery {
+    pub anchor: Pose2,
+    pub f_dist: f64,
+    pub yaw: f64,
+    pub d_s: f64,
+}
+
+/// What the machine needs from the stages, about the current frame.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Request {
+    /// A step begins: reset the local planner's state for this robot, then,
+    /// for a MOVE, turn `move_goal` into an odometry goal.
+    StartStep { index: u32, action: Action, desc: String, move_goal: Option<MoveQuery> },
+    /// Segment the frame into no-go points (kept by the adapter for this
+    /// frame's `Drive`) and, for a FIND, detect `class_id` at `min_score`,
+    /// both at once.
+    Perceive { detect: Option<(i32, f32)> },
+    /// Which of `boxes` is the person `name`.
+    Identify { boxes: Vec<Detection>, name: String },
+    /// The target in `detection`, fused with the track's earlier sightings,
+    /// and the goal `d_s` short of it.
+    Locate { track_key: String, detection: Detection, d_s: f64, moving: bool },
+    /// An odometry goal for an exploration turn or search leg.
+    MoveGoal(MoveQuery),
+    /// One local-planner step toward `goal` on this frame's depth and no-go points.
+    Drive { goal: Goal },
+}
+
+/// The stages' answer to a [`Request`].
+#[derive(Clone, Debug, PartialEq)]
+pub enum Reply {
+    StepStarted { goal: Option<Goal> },
+    Perceived { boxes: Vec<Detection> },
+    Identified(Vec<Identity>),
+    Located(Estimate),
+    Goal(Goal),
+    Driven(DriveAnswer),
+}
+
+/// A stage service failed for this frame.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("the {stage} service failed: {message}")]
+pub struct StageFailure {
+    pub stage: &'static str,
+    pub message: String,
+}
+
+/// The frame's answer to the robot.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Command {
+    pub twist: Twist,
+    /// False while the robot may idle (waiting for the user or for a stage).
+    pub active: bool,
+    /// Set when the mission reached a terminal state on this frame.
+    pub finished: Option<Outcome>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum Next {
+    Call(Request),
+    Done(Command),
+}
+
+/// What the planner is asked after the user answered a question.
+#[derive(Clone, Debug, PartialEq)]
+pub enum PlannerQuery {
+    /// The question came before anything ran: the answer is the instruction now.
+    Plan { instruction: String },
+    /// Revise the plan from the step that failed.
+    Replan { instruction: String, plan: Vec<PlanStep>, failed_step: u32, failure: String, answer: String },
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub enum PlannerReply {
+    Plan { steps: Vec<PlanStep>, plan_json: String },
+    Question(Question),
+}
+
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error("mission {0} is not waiting for an answer")]
+pub struct NotAwaiting(pub String);
+
+/// The next phase of a fruitless search, given where the last one ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ExplorePlan {
+    /// Turn once more (the scan turn number, 0-based) within the current look-around.
+    Turn(u32),
+    /// Drive one search leg (1-based leg number).
+    Search(u32),
+    /// Exploration is exhausted: ask the user.
+    Ask,
+}
+
+/// Bounded exploration schedule: `scan_turns` turns per look-around, then a
+/// search leg, up to `search_legs` legs, each followed by a new look-around.
+pub fn after_look(turn: u32, leg: u32, p: &ExecutorParams) -> ExplorePlan {
+    if turn + 1 < p.scan_turns {
+        ExplorePlan::Turn(turn + 1)
+    } else if leg < p.search_legs {
+        ExplorePlan::Search(leg + 1)
+    } else {
+        ExplorePlan::Ask
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Explore {
+    Idle,
+    /// `since`: the stamp the turn or leg began.
+    /// `origin`: the pose the look-around began at; its turns are counted
+    /// from it, so each turn's tolerance does not shrink the look-around.
+    Turn {
+        goal: Goal,
+        turn: u32,
+        leg: u32,
+        since: f64,
+        origin: Pose2,
+    },
+    Look {
+        frames_left: u32,
+        turn: u32,
+        leg: u32,
+        origin: Pose2,
+    },
+    Search {
+        goal: Goal,
+        leg: u32,
+        since: f64,
+    },
+}
+
+#[derive(Debug)]
+struct FindRun {
+    track_key: String,
+    class_id: i32,
+    person: String,
+    target: String,
+    d_s: f64,
+    moving: bool,
+    streak: u32,
+    confirmed: bool,
+    goal: Option<Goal>,
+    /// The fused target (odom) of the latest accepted observation.
+    fused: Option<Vector3<f64>>,
+    last_center: Option<(f32, f32)>,
+    unseen: u32,
+    last_seen: Option<f64>,
+    follow_until: Option<f64>,
+    explore: Explore,
+}
+
+#[derive(Debug)]
+enum StepRun {
+    Drive { goal: Goal },
+    Find(Box<FindRun>),
+}
+
+#[derive(Debug)]
+struct Active {
+    started: f64,
+    /// The best distance (rotation goals: yaw error) so far and when it was reached.
+    progress: Option<(f64, f64)>,
+    /// Since when the local planner has said Blocked or NoProgress without a break.
+    stuck_since: Option<f64>,
+    run: StepRun,
+}
+
+/// Where the current frame's work stands while a request is out.
+#[derive(Debug)]
+enum Pending {
+    Start {
+        step: PlanStep,
+        anchor: Pose2,
+        d_s: f64,
+    },
+    DrivePerceived {
+        goal: Goal,
+    },
+    DrivePlanned {
+        goal: Goal,
+    },
+    FindPerceived,
+    FindIdentified {
+        boxes: Vec<Detection>,
+    },
+    FindLocated {
+        detection: Detection,
+        identity: String,
+        similarity: f32,
+    },
+    FindPlanned {
+        goal: Goal,
+    },
+    FollowPlanned,
+    /// An exploration goal is being computed; what it is for.
+    ExploreGoal(ExploreGoalFor),
+    /// An exploration turn or search leg is being driven.
+    ExploreDriven(Explore),
+}
+
+#[derive(Clone, Copy, Debug)]
+enum ExploreGoalFor {
+    /// The first turn of a look-around from `origin` after `leg` search legs;
+    /// `announce`: report the exploration's start when the goal is known.
+    Scan { leg: u32, origin: Pose2, announce: bool },
+    /// Turn `turn` of the look-around that began at `origin`.
+    NextTurn { turn: u32, leg: u32, origin: Pose2 },
+    /// Search leg number `leg`.
+    SearchLeg { leg: u32 },
+}
+
+/// A stage outage: since when, how many failures, the latest one, and when to try again.
+#[derive(Debug)]
+struct Outage {
+    since: f64,
+    failures: u32,
+    last: StageFailure,
+    retry_at: f64,
+}
+
+#[derive(Default, Debug)]
+struct MetricsAcc {
+    first_stamp: Option<f64>,
+    last_stamp: f64,
+    last_pose: Option<Pose2>,
+    odom_path: f64,
+    frames: u32,
+    truth_start: Option<Truth>,
+    truth_last: Option<Truth>,
+}
+
+impl MetricsAcc {
+    fn observe(&mut self, stamp: f64, pose: &Pose2, truth: Option<&Truth>) {
+        self.first_stamp.get_or_insert(stamp);
+        self.last_stamp = stamp;
+        if let Some(p) = &self.last_pose {
+            self.odom_path += (pose.x - p.x).hypot(pose.y - p.y);
+        }
+        self.last_pose = Some(*pose);
+        self.frames += 1;
+        if let Some(t) = truth {
+            if self.truth_start.is_none() {
+                self.truth_start = Some(*t);
+            }
+            self.truth_last = Some(*t);
+        }
+    }
+
+    fn metrics(&self, steps_completed: u32, steps_total: u32, replans: u32, last_goal: Option<&Pose2>) -> Metrics {
+        let mut m = Metrics {
+            duration_s: self.first_stamp.map_or(0.0, |f| self.last_stamp - f),
+            odom_path_length_m: self.odom_path,
+            steps_completed,
+            steps_total,
+            frames: self.frames,
+            replans,
+            ..Default::default()
+        };
+        if let (Some(a), Some(b)) = (&self.truth_start, &self.truth_last) {
+            m.has_ground_truth = true;
+            m.true_path_length_m = b.path_length_m - a.path_length_m;
+            m.hard_collisions = b.hard_collisions.saturating_sub(a.hard_collisions);
+            m.soft_collisions = b.soft_collisions.saturating_sub(a.soft_collisions);
+            if let (Some(goal), Some(origin), Some(truth)) = (last_goal, b.odom_origin.as_ref(), b.pose.as_ref()) {
+                let world_goal = compose(origin, goal);
+                m.final_error_m = (truth.x - world_goal.x).hypot(truth.y - world_goal.y);
+            }
+        }
+        m
+    }
+}
+
+/// `a ⊕ b`: pose b expressed in a's frame, mapped to a's parent frame.
+pub fn compose(a: &Pose2, b: &Pose2) -> Pose2 {
+    let (s, c) = a.theta.sin_cos();
+    Pose2 { x: a.x + c * b.x - s * b.y, y: a.y + s * b.x + c * b.y, theta: wrap(a.theta + b.theta) }
+}
+
+/// Where a MOVE starts from: the robot's position, facing the course of the
+/// MOVE or FIND reached just before (if any), else its own heading.
+fn move_anchor(pose: &Pose2, course: Option<f64>) -> Pose2 {
+    Pose2 { theta: course.unwrap_or(pose.theta), ..*pose }
+}
+
+/// Where a target fixed in `odom` appears in this frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum TargetView {
+    /// At this pixel.
+    At(f32, f32),
+    /// Behind the camera or outside the image: any box seen is something else.
+    OutOfView,
+}
+
+/// `None` when the frame has no camera model to predict with.
+fn target_view(frame: &Frame, target: &Vector3<f64>) -> Option<TargetView> {
+    let camera = frame.camera.as_ref()?;
+    let (w, h) = (camera.width as f64, camera.height as f64);
+    let base = frame.pose.odom_to_base(&Vector2::new(target.x, target.y));
+    let pixel = Projector::new(camera).pixel_of(Vector3::new(base.x, base.y, target.z));
+    Some(match pixel {
+        Some((u, v, _)) if (0.0..w).contains(&u) && (0.0..h).contains(&v) => TargetView::At(u as f32, v as f32),
+        _ => TargetView::OutOfView,
+    })
+}
+
+/// The box showing the target predicted at `(u, v)`: the nearest whose
+/// extent, grown by half its size on every side, holds the prediction.
+fn box_at(boxes: &[Detection], u: f32, v: f32) -> Option<&Detection> {
+    boxes
+        .iter()
+        .filter(|b| {
+            let (mx, my) = ((b.x_max - b.x_min) / 2.0, (b.y_max - b.y_min) / 2.0);
+            (b.x_min - mx..=b.x_max + mx).contains(&u) && (b.y_min - my..=b.y_max + my).contains(&v)
+        })
+        .min_by(|a, b| {
+            let d = |x: &Detection| (x.center().0 - u).hypot(x.center().1 - v);
+            d(a).total_cmp(&d(b))
+        })
+}
+
+/// The box of an unnamed target in this frame: where a confirmed fixed
+/// target projects; else the instance tracked so far; else the most confident.
+fn choose_box<'a>(f: &FindRun, frame: &Frame, boxes: &'a [Detection]) -> Option<&'a Detection> {
+    if f.confirmed && !f.moving {
+        match f.fused.as_ref().and_then(|t| target_view(frame, t)) {
+            Some(TargetView::At(u, v)) => return box_at(boxes, u, v),
+            Some(TargetView::OutOfView) => return None,
+            None => {}
+        }
+    }
+    match f.last_center {
+        Some((cx, cy)) => boxes.iter().min_by(|a, b| {
+            let da = (a.center().0 - cx).hypot(a.center().1 - cy);
+            let db = (b.center().0 - cx).hypot(b.center().1 - cy);
+            da.total_cmp(&db)
+        }),
+        None => boxes.iter().max_by(|a, b| a.score.total_cmp(&b.score)),
+    }
+}
+
+fn capitalise(s: &str) -> String {
+    let mut c = s.chars();
+    c.next().map(|f| f.to_uppercase().collect::<String>() + c.as_str()).unwrap_or_default()
+}
+
+/// One mission on one robot.
+#[derive(Debug)]
+pub struct Mission {
+    mission_id: String,
+    instruction: String,
+    plan: Vec<PlanStep>,
+    index: usize,
+    step: Option<Active>,
+    start_pose: Option<Pose2>,
+    last_goal: Option<Pose2>,
+    /// The heading (odom) of the last reached MOVE's or FIND's goal: the
+    /// course the next MOVE turns from.
+    course: Option<f64>,
+    metrics: MetricsAcc,
+    replans: u32,
+    /// The question waiting for an answer, and the failure that caused it.
+    awaiting: Option<(Question, String)>,
+    outage: Option<Outage>,
+    /// The frame being handled and where its work stands.
+    frame: Frame,
+    pending: Option<Pending>,
+    events: Vec<Stamped>,
+}
+
+impl Mission {
+    /// A mission running `plan`; `question` holds one asked before execution.
+    pub fn new(mission_id: String, instruction: String, plan: Vec<PlanStep>, question: Option<Question>) -> Self {
+        Self {
+            mission_id,
+            instruction,
+            plan,
+            index: 0,
+            step: None,
+            start_pose: None,
+            last_goal: None,
+            course: None,
+            metrics: MetricsAcc::default(),
+            replans: 0,
+            awaiting: question.map(|q| {
+                let reason = q.reason.clone();
+                (q, reason)
+            }),
+            outage: None,
+            frame: Frame::default(),
+            pending: None,
+            events: Vec::new(),
+        }
+    }
+
+    pub fn is_awaiting(&self) -> bool {
+        self.awaiting.is_some()
+    }
+
+    /// Whether a step is under way (its trace span is the parent of this frame's work).
+    pub fn has_step(&self) -> bool {
+        self.step.is_some()
+    }
+
+    pub fn plan(&self) -> &[PlanStep] {
+        &self.plan
+    }
+
+    /// The events since the last call, in order.
+    pub fn take_events(&mut self) -> Vec<Stamped> {
+        std::mem::take(&mut self.events)
+    }
+
+    fn emit(&mut self, event: Event) {
+        self.events.push(Stamped { stamp: self.frame.stamp, event });
+    }
+
+    fn metrics(&self) -> Metrics {
+        self.metrics.metrics(self.index as u32, self.plan.len() as u32, self.replans, self.last_goal.as_ref())
+    }
+
+    /// Ends the mission with `outcome`, stamped with the last frame's time.
+    pub fn finish(&mut self, outcome: Outcome, reason: String) {
+        let stamp = self.metrics.last_stamp;
+        let metrics = self.metrics();
+        let current_step = self.index as u32;
+        self.events.push(Stamped { stamp, event: Event::Finished { outcome, reason, metrics, current_step } });
+        self.step = None;
+        self.pending = None;
+    }
+
+    pub fn cancel(&mut self) {
+        self.finish(Outcome::Cancelled, "cancelled by the user; the robot was stopped".into());
+    }
+
+    fn done(&mut self, twist: Twist, finished: Option<Outcome>) -> Next {
+        self.pending = None;
+        self.outage = None;
+        Next::Done(Command { twist, active: finished.is_none() && self.awaiting.is_none(), finished })
+    }
+
+    fn hold(&mut self) -> Next {
+        self.done(Twist::ZERO, None)
+    }
+
+    fn call(&mut self, pending: Pending, request: Request) -> Next {
+        self.pending = Some(pending);
+        Next::Call(request)
+    }
+
+    /// A new sensor frame: the start of one control cycle.
+    pub fn on_frame(&mut self, p: &ExecutorParams, frame: Frame) -> Next {
+        self.pending = None;
+        if self.awaiting.is_some() {
+            return Next::Done(Command { twist: Twist::ZERO, active: false, finished: None });
+        }
+        self.metrics.observe(frame.stamp, &frame.pose, frame.truth.as_ref());
+        self.start_pose.get_or_insert(frame.pose);
+        self.frame = frame;
+        if let Some(o) = &self.outage {
+            let stamp = self.frame.stamp;
+            if stamp - o.since >= STAGE_OUTAGE_S {
+                return self.fail_outage();
+            }
+            if stamp < o.retry_at {
+                // Backing off: the robot holds still and may idle meanwhile.
+                return Next::Done(Command { twist: Twist::ZERO, active: false, finished: None });
+            }
+        }
+        if self.step.is_none() {
+            if self.index >= self.plan.len() {
+                self.finish(Outcome::Succeeded, "every step completed".into());
+                return self.done(Twist::ZERO, Some(Outcome::Succeeded));
+            }
+            return self.start_step(p);
+        }
+        self.continue_step(p)
+    }
+
+    /// A stage failed: hold the robot, try again later in sensor time, and
+    /// fail the mission when the outage outlasts `STAGE_OUTAGE_S`.
+    pub fn on_stage_error(&mut self, failure: StageFailure) -> Next {
+        self.pending = None;
+        let stamp = self.frame.stamp;
+        let o = self.outage.get_or_insert(Outage { since: stamp, failures: 0, last: failure.clone(), retry_at: stamp });
+        o.failures += 1;
+        o.last = failure;
+        let wait = (STAGE_RETRY_S * 2f64.powi(o.failures.min(16) as i32 - 1)).min(STAGE_RETRY_MAX_S);
+        o.retry_at = stamp + wait;
+        if stamp - o.since >= STAGE_OUTAGE_S {
+            return self.fail_outage();
+        }
+        Next::Done(Command { twist: Twist::ZERO, active: false, finished: None })
+    }
+
+    fn fail_outage(&mut self) -> Next {
+        let Some(o) = self.outage.take() else { return self.hold() };
+        let reason = format!("{} for {:.0} s of robot time; the robot was stopped", o.last, self.frame.stamp - o.since);
+        self.finish(Outcome::Failed, reason);
+        self.done(Twist::ZERO, Some(Outcome::Failed))
+    }
+
+    fn start_step(&mut self, p: &ExecutorParams) -> Next {
+        let step = self.plan[self.index].clone();
+        let pose = self.frame.pose;
+        let d_s = if step.d_s > 0.0 { step.d_s } else { p.default_d_s };
+        let anchor = match step.action {
+            Action::Move => move_anchor(&pose, self.course),
+            _ => pose,
+        };
+        if step.action == Action::Unspecified {
+            self.finish(Outcome::Failed, format!("step {} has no action; the plan is invalid", self.index + 1));
+            return self.done(Twist::ZERO, Some(Outcome::Failed));
+        }
+        let move_goal = (step.action == Action::Move).then_some(MoveQuery {
+            anchor,
+            f_dist: step.f_dist,
+            yaw: step.yaw,
+            d_s: step.d_s,
+        });
+        let request =
+            Request::StartStep { index: self.index as u32, action: step.action, desc: step.desc.clone(), move_goal };
+        self.call(Pending::Start { step, anchor, d_s }, request)
+    }
+
+    fn step_started(
+        &mut self,
+        p: &ExecutorParams,
+        step: PlanStep,
+        anchor: Pose2,
+        d_s: f64,
+        goal: Option<Goal>,
+    ) -> Next {
+        let run = match step.action {
+            Action::Move => match goal {
+                Some(goal) => StepRun::Drive { goal },
+                None => {
+                    return self
+                        .on_stage_error(StageFailure { stage: "subgoal", message: "no goal for a MOVE step".into() });
+                }
+            },
+            Action::Return => StepRun::Drive {
+                goal: Goal {
+                    pose: self.start_pose.unwrap_or(self.frame.pose),
+                    position_tolerance: 0.5_f64.max(step.d_s),
+                    yaw_tolerance: std::f64::consts::PI,
+                    rotation_only: false,
+                },
+            },
+            Action::Find | Action::Follow | Action::Unspecified => StepRun::Find(Box::new(FindRun {
+                track_key: format!("{}/{}/{}", self.mission_id, self.replans, self.index),
+                class_id: step.class_id,
+                person: step.person.clone(),
+                target: if step.target.is_empty() {
+                    vlnav_proto::coco::name(step.class_id).unwrap_or("target").to_string()
+                } else {
+                    step.target.clone()
+                },
+                d_s,
+                moving: step.action == Action::Follow,
+                streak: 0,
+                confirmed: false,
+                goal: None,
+                fused: None,
+                last_center: None,
+                unseen: 0,
+                last_seen: None,
+                follow_until: None,
+                explore: Explore::Idle,
+            })),
+        };
+        let index = self.index as u32;
+        self.emit(Event::StepStarted { index, step, anchor });
+        self.step = Some(Active { started: self.frame.stamp, progress: None, stuck_since: None, run });
+        self.continue_step(p)
+    }
+
+    /// The step under way, this frame: its time limit, then perception.
+    fn continue_step(&mut self, p: &ExecutorParams) -> Next {
+        let stamp = self.frame.stamp;
+        let Some(active) = self.step.as_ref() else { return self.hold() };
+        if stamp - active.started > p.step_timeout_s {
+            let what = self.plan[self.index].desc.clone();
+            self.ask(
+                format!("step {} ({what}) did not finish within {:.0} s", self.index + 1, p.step_timeout_s),
+                "This is taking much longer than expected. Should I keep going, skip this step, or stop?".into(),
+            );
+            return self.hold();
+        }
+        match &active.run {
+            StepRun::Drive { goal } => {
+                let goal = *goal;
+                self.call(Pending::DrivePerceived { goal }, Request::Perceive { detect: None })
+            }
+            StepRun::Find(f) => {
+                let detect = Some((f.class_id, p.min_score));
+                self.call(Pending::FindPerceived, Request::Perceive { detect })
+            }
+        }
+    }
+
+    fn find(&self) -> Option<&FindRun> {
+        match self.step.as_ref().map(|s| &s.run) {
+            Some(StepRun::Find(f)) => Some(f),
+            _ => None,
+        }
+    }
+
+    fn find_mut(&mut self) -> Option<&mut FindRun> {
+        match self.step.as_mut().map(|s| &mut s.run) {
+            Some(StepRun::Find(f)) => Some(f),
+            _ => None,
+        }
+    }
+
+    /// The stages' answer to the last request.
+    pub fn on_reply(&mut self, p: &ExecutorParams, reply: Reply) -> Next {
+        let Some(pending) = self.pending.take() else { return self.hold() };
+        match (pending, reply) {
+            (Pending::Start { step, anchor, d_s }, Reply::StepStarted { goal }) => {
+                self.step_started(p, step, anchor, d_s, goal)
+            }
+            (Pending::DrivePerceived { goal }, Reply::Perceived { .. }) => {
+                self.call(Pending::DrivePlanned { goal }, Request::Drive { goal })
+            }
+            (Pending::DrivePlanned { goal } | Pending::FindPlanned { goal }, Reply::Driven(answer)) => {
+                self.drive_outcome(p, &goal, answer)
+            }
+            (Pending::FindPerceived, Reply::Perceived { boxes }) => self.find_box(p, boxes),
+            (Pending::FindIdentified { boxes }, Reply::Identified(identities)) => {
+                let Some(f) = self.find() else { return self.hold() };
+                let best = identities
+                    .iter()
+                    .filter(|i| i.matched && i.name.eq_ignore_ascii_case(&f.person))
+                    .max_by(|a, b| a.similarity.total_cmp(&b.similarity));
+                match best.and_then(|i| boxes.get(i.box_index as usize).map(|b| (b.clone(), i))) {
+                    Some((b, i)) => {
+                        let (name, similarity) = (i.name.clone(), i.similarity);
+                        self.locate(b, name, similarity)
+                    }
+                    None => self.observed(p, None),
+                }
+            }
+            (Pending::FindLocated { detection, identity, similarity }, Reply::Located(est)) => {
+                let usable = matches!(est.status, EstimateStatus::Ok | EstimateStatus::Outlier) && est.goal.is_some();
+                self.observed(p, usable.then_some((detection, identity, similarity, est)))
+            }
+            (Pending::FollowPlanned, Reply::Driven(answer)) => {
+                // Following: being within d_s is where we want to stay, not the end.
+                let twist = if answer.status == DriveStatus::Reached { Twist::ZERO } else { answer.cmd };
+                self.done(twist, None)
+            }
+            (Pending::ExploreGoal(what), Reply::Goal(goal)) => self.explore_goal(what, goal),
+            (Pending::ExploreDriven(state), Reply::Driven(answer)) => self.explore_driven(p, state, answer),
+            (pending, reply) => {
+                tracing::error!(mission = %self.mission_id, ?pending, ?reply, "a stage reply that answers nothing asked");
+                self.on_stage_error(StageFailure { stage: "gateway", message: "an answer out of order".into() })
+            }
+        }
+    }
+
+    /// This frame's boxes of the target's class: which one is the target.
+    fn find_box(&mut self, p: &ExecutorParams, boxes: Vec<Detection>) -> Next {
+        let Some(f) = self.find() else { return self.hold() };
+        if boxes.is_empty() {
+            return self.observed(p, None);
+        }
+        if !f.person.is_empty() {
+            let name = f.person.clone();
+            return self.call(Pending::FindIdentified { boxes: boxes.clone() }, Request::Identify { boxes, name });
+        }
+        match choose_box(f, &self.frame, &boxes) {
+            Some(b) => {
+                let b = b.clone();
+                self.locate(b, String::new(), 0.0)
+            }
+            None => self.observed(p, None),
+        }
+    }
+
+    fn locate(&mut self, detection: Detection, identity: String, similarity: f32) -> Next {
+        let Some(f) = self.find() else { return self.hold() };
+        let request = Request::Locate {
+            track_key: f.track_key.clone(),
+            detection: detection.clone(),
+            d_s: f.d_s,
+            moving: f.moving,
+        };
+        self.call(Pending::FindLocated { detection, identity, similarity }, request)
+    }
+
+    /// This frame's sighting (or none) updates the search, then drives,
+    /// waits or explores.
+    fn observed(&mut self, p: &ExecutorParams, observation: Option<(Detection, String, f32, Estimate)>) -> Next {
+        let stamp = self.frame.stamp;
+        let index = self.index as u32;
+        let Some(f) = self.find_mut() else { return self.hold() };
+        let mut seen = None;
+        match observation {
+            Some((b, identity, similarity, est)) => {
+                f.unseen = 0;
+                f.streak += 1;
+                f.last_seen = Some(stamp);
+                f.goal = est.goal;
+                f.fused = est.fused_target.or(f.fused);
+                f.last_center = Some(b.center());
+                if !f.confirmed && f.streak >= p.confirm_frames {
+                    f.confirmed = true;
+                    f.explore = Explore::Idle;
+                    seen = Some(Event::TargetSeen {
+                        index,
+                        detection: b,
+                        target: est.fused_target,
+                        goal: est.goal.map(|g| g.pose),
+                        range_m: est.range_m,
+                        identity,
+                        identity_similarity: similarity,
+                    });
+                }
+            }
+            None => {
+                f.streak = 0;
+                f.unseen += 1;
+                if f.moving && f.confirmed && f.last_seen.is_some_and(|t| stamp - t > p.follow_lost_s) {
+                    f.confirmed = false;
+                }
+            }
+        }
+        let (confirmed, goal, moving, waiting) =
+            (f.confirmed, f.goal, f.moving, f.streak > 0 || f.unseen < p.unseen_frames);
+        if let Some(event) = seen {
+            self.emit(event);
+        }
+        if confirmed {
+            let Some(goal) = goal else { return self.hold() };
+            if moving {
+                let Some(f) = self.find_mut() else { return self.hold() };
+                let until = *f.follow_until.get_or_insert(stamp + p.follow_default_s);
+                if stamp >= until {
+                    self.complete_step(&goal);
+                    return self.hold();
+                }
+                return self.call(Pending::FollowPlanned, Request::Drive { goal });
+            }
+            return self.call(Pending::FindPlanned { goal }, Request::Drive { goal });
+        }
+        if waiting {
+            // A candidate to confirm, or still looking from here: hold still.
+            return self.hold();
+        }
+        self.explore(p)
+    }
+
+    /// Applies a local-planner answer for a drive toward the step's goal.
+    fn drive_outcome(&mut self, p: &ExecutorParams, goal: &Goal, plan: DriveAnswer) -> Next {
+        let (stamp, pose) = (self.frame.stamp, self.frame.pose);
+        tracing::debug!(
+            mission = %self.mission_id, step = self.index, stamp, status = ?plan.status, distance = plan.distance_to_goal,
+            heading_error = plan.heading_error, free_paths = plan.free_paths, x = pose.x, y = pose.y, theta = pose.theta,
+            v = plan.cmd.linear, w = plan.cmd.angular, path = plan.path_id,
+            "drive"
+        );
+        if plan.status == DriveStatus::Reached {
+            self.complete_step(goal);
+            return self.hold();
+        }
+        // Progress is measured here, over the whole step, in sensor time: the
+        // local planner's own watchdog fires once per window and then moves
+        // again, so a robot circling its goal would never count as stuck.
+        let (measure, step_m) = if goal.rotation_only {
+            (plan.heading_error.abs(), PROGRESS_RAD)
+        } else {
+            (plan.distance_to_goal, PROGRESS_M)
+        };
+        let Some(step) = self.step.as_mut() else { return self.hold() };
+        let since = match &mut step.progress {
+            Some(best) => {
+                if measure < best.0 - step_m {
+                    *best = (measure, stamp);
+                }
+                best.1
+            }
+            None => {
+                step.progress = Some((measure, stamp));
+                stamp
+            }
+        };
+        let stuck_since = if matches!(plan.status, DriveStatus::Blocked | DriveStatus::NoProgress) {
+            *step.stuck_since.get_or_insert(stamp)
+        } else {
+            step.stuck_since = None;
+            stamp
+        };
+        if !goal.rotation_only
+            && plan.distance_to_goal <= goal.position_tolerance + SETTLE_M
+            && stamp - since >= p.settle_after_s
+        {
+            // Close to the goal and no longer converging: settle where we are.
+            self.complete_step(goal);
+            return self.hold();
+        }
+        if stamp - stuck_since < p.stuck_timeout_s && stamp - since < p.progress_timeout_s {
+            return self.done(plan.cmd, None);
+        }
+        let why = if plan.status == DriveStatus::Blocked { "my way is blocked" } else { "I am not getting closer" };
+        self.ask(
+            format!("step {}: {why} ({:.1} m from the goal)", self.index + 1, plan.distance_to_goal),
+            format!("{} — should I try another way, skip this step, or stop?", capitalise(why)),
+        );
+        self.hold()
+    }
+
+    fn complete_step(&mut self, goal: &Goal) {
+        let (g, pose) = (goal.pose, self.frame.pose);
+        let error_m = (pose.x - g.x).hypot(pose.y - g.y);
+        self.last_goal = Some(g);
+        // A MOVE's goal heads along its course, a FIND's faces its target; a
+        // FOLLOW ends wherever the person led, a RETURN at the start pose.
+        let sets_course = self.plan.get(self.index).is_some_and(|s| matches!(s.action, Action::Move | Action::Find));
+        self.course = sets_course.then_some(g.theta);
+        let index = self.index as u32;
+        self.emit(Event::SubgoalReached { index, pose, goal: g, error_m });
+        // Re-anchor: the next step is relative to where this one ended.
+        self.index += 1;
+        self.step = None;
+    }
+
+    fn ask(&mut self, reason: String, question: String) {
+        let index = self.index as u32;
+        let question = Question {
+            question,
+            reason: reason.clone(),
+            options: vec!["skip this step".into(), "try again".into(), "cancel the mission".into()],
+        };
+        // Whatever the answer, the robot goes on from where it stands.
+        self.course = None;
+        self.emit(Event::StepFailed { index, reason: reason.clone() });
+        self.emit(Event::ClarificationNeeded { index, question: question.clone() });
+        self.awaiting = Some((question, reason));
+        self.step = None;
+    }
+
+    /// Scan turn `turn` (0-based) of the look-around that began at `origin`.
+    fn turn_query(p: &ExecutorParams, origin: Pose2, turn: u32) -> MoveQuery {
+        MoveQuery { anchor: origin, f_dist: 0.0, yaw: wrap(p.scan_turn_rad * f64::from(turn + 1)), d_s: 0.0 }
+    }
+
+    /// The target is not in view and nothing is to be confirmed: the next
+    /// move of the bounded exploration.
+    fn explore(&mut self, p: &ExecutorParams) -> Next {
+        let pose = self.frame.pose;
+        let index = self.index as u32;
+        let Some(f) = self.find_mut() else { return self.hold() };
+        let state = std::mem::replace(&mut f.explore, Explore::Idle);
+        match state {
+            Explore::Idle => {
+                let what = ExploreGoalFor::Scan { leg: 0, origin: pose, announce: true };
+                self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, pose, 0)))
+            }
+            Explore::Turn { goal, .. } | Explore::Search { goal, .. } => {
+                self.call(Pending::ExploreDriven(state), Request::Drive { goal })
+            }
+            Explore::Look { frames_left, turn, leg, origin } if frames_left > 1 => {
+                f.explore = Explore::Look { frames_left: frames_left - 1, turn, leg, origin };
+                self.hold()
+            }
+            Explore::Look { turn, leg, origin, .. } => match after_look(turn, leg, p) {
+                ExplorePlan::Turn(t) => {
+                    let what = ExploreGoalFor::NextTurn { turn: t, leg, origin };
+                    self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, t)))
+                }
+                ExplorePlan::Search(l) => {
+                    let query = MoveQuery { anchor: pose, f_dist: p.search_leg_m, yaw: 0.0, d_s: 0.0 };
+                    self.call(Pending::ExploreGoal(ExploreGoalFor::SearchLeg { leg: l }), Request::MoveGoal(query))
+                }
+                ExplorePlan::Ask => {
+                    let who = if f.person.is_empty() {
+                        format!("the {}", f.target)
+                    } else {
+                        format!("{} ({})", f.person, f.target)
+                    };
+                    self.ask(
+                        format!(
+                            "step {}: {who} not found after looking all around and {} search leg(s)",
+                            index + 1,
+                            p.search_legs
+                        ),
+                        format!("I could not find {who}. Where should I look, or should I skip it?"),
+                    );
+                    self.hold()
+                }
+            },
+        }
+    }
+
+    fn explore_goal(&mut self, what: ExploreGoalFor, goal: Goal) -> Next {
+        let stamp = self.frame.stamp;
+        let index = self.index as u32;
+        let next = match what {
+            ExploreGoalFor::Scan { leg, origin, announce } => {
+                if announce {
+                    self.emit(Event::Exploring { index, phase: ExplorePhase::Scan, attempt: 1 });
+                }
+                Explore::Turn { goal, turn: 0, leg, since: stamp, origin }
+            }
+            ExploreGoalFor::NextTurn { turn, leg, origin } => Explore::Turn { goal, turn, leg, since: stamp, origin },
+            ExploreGoalFor::SearchLeg { leg } => {
+                self.emit(Event::Exploring { index, phase: ExplorePhase::Search, attempt: leg });
+                Explore::Search { goal, leg, since: stamp }
+            }
+        };
+        if let Some(f) = self.find_mut() {
+            f.explore = next;
+        }
+        self.hold()
+    }
+
+    fn explore_driven(&mut self, p: &ExecutorParams, state: Explore, answer: DriveAnswer) -> Next {
+        let (stamp, pose) = (self.frame.stamp, self.frame.pose);
+        let index = self.index as u32;
+        let (next, twist) = match state {
+            Explore::Turn { goal, turn, leg, since, origin } => {
+                // A scan turn that does not finish in time (a wheel stalled
+                // short of the heading) looks from where it got to.
+                if answer.status == DriveStatus::Reached || stamp - since >= SCAN_TURN_LIMIT_S {
+                    (Explore::Look { frames_left: p.look_frames, turn, leg, origin }, Twist::ZERO)
+                } else {
+                    (Explore::Turn { goal, turn, leg, since, origin }, answer.cmd)
+                }
+            }
+            Explore::Search { goal, leg, since } => {
+                let overdue = stamp - since >= p.search_leg_m / SEARCH_MIN_SPEED + SCAN_TURN_LIMIT_S;
+                let ended =
+                    matches!(answer.status, DriveStatus::Reached | DriveStatus::Blocked | DriveStatus::NoProgress);
+                if overdue || ended {
+                    self.emit(Event::Exploring { index, phase: ExplorePhase::Scan, attempt: leg + 1 });
+                    let what = ExploreGoalFor::Scan { leg, origin: pose, announce: false };
+                    return self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, pose, 0)));
+                }
+                (Explore::Search { goal, leg, since }, answer.cmd)
+            }
+            other => (other, Twist::ZERO),
+        };
+        if let Some(f) = self.find_mut() {
+            f.explore = next;
+        }
+        self.done(twist, None)
+    }
+
+    /// What to ask the planner with the user's answer.
+    pub fn planner_query(&self, answer: &str) -> Result<PlannerQuery, NotAwaiting> {
+        let Some((_, failure)) = self.awaiting.as_ref() else { return Err(NotAwaiting(self.mission_id.clone())) };
+        Ok(if self.plan.is_empty() {
+            PlannerQuery::Plan { instruction: answer.to_string() }
+        } else {
+            PlannerQuery::Replan {
+                instruction: self.instruction.clone(),
+                plan: self.plan.clone(),
+                failed_step: self.index as u32,
+                failure: failure.clone(),
+                answer: answer.to_string(),
+            }
+        })
+    }
+
+    /// The planner's answer to [`Mission::planner_query`]: the revised full
+    /// plan (the mission resumes at the step that failed), or a further question.
+    pub fn on_planner_reply(&mut self, answer: &str, reply: PlannerReply) -> Result<Vec<PlanStep>, Question> {
+        let stamp = self.metrics.last_stamp;
+        match reply {
+            PlannerReply::Plan { steps, plan_json } => {
+                let mut plan = self.plan[..self.index.min(self.plan.len())].to_vec();
+                plan.extend(steps);
+                self.plan = plan.clone();
+                self.replans += 1;
+                self.awaiting = None;
+                let event = Event::Replanned {
+                    plan: plan.clone(),
+                    plan_json,
+                    answer: answer.to_string(),
+                    resume_index: self.index as u32,
+                };
+                self.events.push(Stamped { stamp, event });
+                Ok(plan)
+            }
+            PlannerReply::Question(q) => {
+                let index = self.index as u32;
+                self.events.push(Stamped { stamp, event: Event::ClarificationNeeded { index, question: q.clone() } });
+                if let Some(a) = self.awaiting.as_mut() {
+                    a.0 = q.clone();
+                }
+                Err(q)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+#[path = "machine_tests.rs"]
+mod tests;

@@ -1,0 +1,557 @@
+//! The state machine's decisions, scripted: each test answers the machine's
+//! requests as the stages would and drives it with sensor time alone.
+
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_6};
+
+use super::*;
+use vlnav_subgoal::camera::{Camera, Intrinsics, Mount};
+
+fn step(action: Action) -> PlanStep {
+    PlanStep {
+        action,
+        desc: format!("{action:?}"),
+        f_dist: 0.0,
+        yaw: 0.0,
+        target: String::new(),
+        class_id: 0,
+        person: String::new(),
+        d_s: 0.0,
+        duration_s: 0.0,
+    }
+}
+
+fn mv(f_dist: f64, yaw: f64) -> PlanStep {
+    PlanStep { f_dist, yaw, ..step(Action::Move) }
+}
+
+fn find(class_id: i32, target: &str) -> PlanStep {
+    PlanStep { class_id, target: target.into(), ..step(Action::Find) }
+}
+
+fn camera() -> Camera {
+    Camera {
+        width: 160,
+        height: 120,
+        intrinsics: Intrinsics { fx: 80.0, fy: 80.0, cx: 80.0, cy: 60.0 },
+        mount: Mount { translation: Vector3::new(0.3, 0.0, 0.5), ..Mount::default() },
+        depth_min_m: 0.0,
+        depth_max_m: 1e3,
+    }
+}
+
+fn at(stamp: f64, x: f64, y: f64, theta: f64) -> Frame {
+    Frame {
+        seq: (stamp * 10.0).round() as u64,
+        stamp,
+        pose: Pose2::new(x, y, theta),
+        camera: Some(camera()),
+        truth: None,
+    }
+}
+
+fn mission(plan: Vec<PlanStep>) -> Mission {
+    Mission::new("m-1".into(), "an instruction".into(), plan, None)
+}
+
+/// The subgoal estimator's MOVE rule (docs/design.md, "Subgoals").
+fn goal_of(q: &MoveQuery) -> Goal {
+    let heading = wrap(q.anchor.theta + q.yaw);
+    let rotation_only = q.f_dist.abs() < 0.1;
+    Goal {
+        pose: Pose2::new(q.anchor.x + q.f_dist * heading.cos(), q.anchor.y + q.f_dist * heading.sin(), heading),
+        position_tolerance: 0.25,
+        yaw_tolerance: 0.2,
+        rotation_only,
+    }
+}
+
+fn driven(status: DriveStatus, linear: f64, distance_to_goal: f64) -> Reply {
+    Reply::Driven(DriveAnswer {
+        status,
+        cmd: Twist { linear, angular: 0.0 },
+        path_id: 0,
+        distance_to_goal,
+        heading_error: 0.0,
+        free_paths: 10,
+    })
+}
+
+fn chair(x_min: f32, x_max: f32) -> Detection {
+    Detection { x_min, y_min: 40.0, x_max, y_max: 80.0, class_id: 56, score: 0.9, label: "chair".into() }
+}
+
+fn located(goal: Pose2) -> Reply {
+    Reply::Located(Estimate {
+        status: EstimateStatus::Ok,
+        goal: Some(Goal { pose: goal, position_tolerance: 0.25, yaw_tolerance: 0.2, rotation_only: false }),
+        fused_target: Some(Vector3::new(goal.x + 1.5, goal.y, 0.5)),
+        range_m: 3.0,
+    })
+}
+
+/// One control cycle: answers every request with `answer`; returns the
+/// command and the requests in the order they were made.
+fn cycle(
+    m: &mut Mission,
+    p: &ExecutorParams,
+    frame: Frame,
+    mut answer: impl FnMut(&Request) -> Result<Reply, StageFailure>,
+) -> (Command, Vec<Request>) {
+    let mut next = m.on_frame(p, frame);
+    let mut asked = Vec::new();
+    loop {
+        match next {
+            Next::Done(command) => return (command, asked),
+            Next::Call(request) => {
+                let reply = answer(&request);
+                asked.push(request);
+                next = match reply {
+                    Ok(reply) => m.on_reply(p, reply),
+                    Err(failure) => m.on_stage_error(failure),
+                };
+            }
+        }
+    }
+}
+
+/// Stages that see nothing and drive with `drive` toward any goal.
+fn blind(drive: impl Fn(&Goal) -> Reply) -> impl FnMut(&Request) -> Result<Reply, StageFailure> {
+    move |r| {
+        Ok(match r {
+            Request::StartStep { move_goal, .. } => Reply::StepStarted { goal: move_goal.as_ref().map(goal_of) },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![] },
+            Request::MoveGoal(q) => Reply::Goal(goal_of(q)),
+            Request::Drive { goal } => drive(goal),
+            other => panic!("unexpected request {other:?}"),
+        })
+    }
+}
+
+fn events(m: &mut Mission) -> Vec<Event> {
+    m.take_events().into_iter().map(|s| s.event).collect()
+}
+
+#[test]
+fn a_move_starts_perceives_drives_and_completes_when_reached() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(2.0, 0.0)]);
+    let (cmd, asked) = cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.5, 2.0)));
+    let query = MoveQuery { anchor: Pose2::new(0.0, 0.0, 0.0), f_dist: 2.0, yaw: 0.0, d_s: 0.0 };
+    assert_eq!(
+        asked,
+        vec![
+            Request::StartStep { index: 0, action: Action::Move, desc: "Move".into(), move_goal: Some(query) },
+            Request::Perceive { detect: None },
+            Request::Drive { goal: goal_of(&query) },
+        ]
+    );
+    assert_eq!(cmd, Command { twist: Twist { linear: 0.5, angular: 0.0 }, active: true, finished: None });
+    assert!(matches!(events(&mut m)[..], [Event::StepStarted { index: 0, .. }]));
+
+    let (cmd, _) = cycle(&mut m, &p, at(4.0, 1.9, 0.0, 0.0), blind(|_| driven(DriveStatus::Reached, 0.0, 0.1)));
+    assert_eq!(cmd.twist, Twist::ZERO);
+    match &events(&mut m)[..] {
+        [Event::SubgoalReached { index: 0, error_m, .. }] => assert!((error_m - 0.1).abs() < 1e-9),
+        other => panic!("{other:?}"),
+    }
+    let (cmd, asked) = cycle(&mut m, &p, at(4.1, 1.9, 0.0, 0.0), blind(|_| unreachable!()));
+    assert!(asked.is_empty());
+    assert_eq!(cmd.finished, Some(Outcome::Succeeded));
+    assert!(!cmd.active);
+    match &events(&mut m)[..] {
+        [Event::Finished { outcome: Outcome::Succeeded, metrics, current_step: 1, .. }] => {
+            assert_eq!((metrics.steps_completed, metrics.steps_total, metrics.frames), (1, 1, 3));
+            assert!((metrics.duration_s - 4.1).abs() < 1e-9);
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_move_after_a_move_turns_from_that_moves_course_not_the_arrival_heading() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(10.0, 0.0), mv(2.0, FRAC_PI_6)]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 10.0)));
+    // The first leg ran along +x but the robot arrived swerved 0.58 rad to the right.
+    cycle(&mut m, &p, at(12.0, 9.8, 0.1, -0.58), blind(|_| driven(DriveStatus::Reached, 0.0, 0.2)));
+    let (_, asked) = cycle(&mut m, &p, at(12.1, 9.8, 0.1, -0.58), blind(|_| driven(DriveStatus::Moving, 1.0, 2.0)));
+    match &asked[0] {
+        Request::StartStep { move_goal: Some(q), .. } => {
+            assert_eq!((q.anchor.x, q.anchor.y, q.anchor.theta), (9.8, 0.1, 0.0));
+            assert_eq!(q.yaw, FRAC_PI_6);
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_target_is_confirmed_after_consecutive_sightings_then_approached() {
+    let p = ExecutorParams { confirm_frames: 3, ..ExecutorParams::default() };
+    let mut m = mission(vec![find(56, "chair")]);
+    let goal = Pose2::new(2.0, 0.0, 0.0);
+    let mut drives = 0;
+    let mut sees = |r: &Request| -> Result<Reply, StageFailure> {
+        Ok(match r {
+            Request::StartStep { move_goal: None, .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { detect: Some((56, score)) } => {
+                assert_eq!(*score, p.min_score);
+                Reply::Perceived { boxes: vec![chair(70.0, 95.0)] }
+            }
+            Request::Locate { detection, d_s, moving: false, .. } => {
+                assert_eq!(detection.x_min, 70.0);
+                assert_eq!(*d_s, p.default_d_s);
+                located(goal)
+            }
+            Request::Drive { goal: g } => {
+                drives += 1;
+                assert_eq!(g.pose, goal);
+                driven(DriveStatus::Moving, 0.6, 2.0)
+            }
+            other => panic!("unexpected {other:?}"),
+        })
+    };
+    for k in 0..2 {
+        let (cmd, _) = cycle(&mut m, &p, at(f64::from(k) * 0.2, 0.0, 0.0, 0.0), &mut sees);
+        assert_eq!(cmd.twist, Twist::ZERO, "a candidate is not confirmed yet: hold still");
+    }
+    let (cmd, _) = cycle(&mut m, &p, at(0.4, 0.0, 0.0, 0.0), &mut sees);
+    assert_eq!(cmd.twist.linear, 0.6);
+    assert_eq!(drives, 1);
+    let seen: Vec<_> = events(&mut m).into_iter().filter(|e| matches!(e, Event::TargetSeen { .. })).collect();
+    assert_eq!(seen.len(), 1, "confirmed once");
+}
+
+#[test]
+fn a_sighting_without_depth_breaks_the_streak() {
+    let p = ExecutorParams { confirm_frames: 2, ..ExecutorParams::default() };
+    let mut m = mission(vec![find(56, "chair")]);
+    let mut k = 0;
+    let mut flaky = |r: &Request| -> Result<Reply, StageFailure> {
+        Ok(match r {
+            Request::StartStep { .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Locate { .. } => {
+                k += 1;
+                if k % 2 == 0 {
+                    Reply::Located(Estimate {
+                        status: EstimateStatus::NoDepth,
+                        goal: None,
+                        fused_target: None,
+                        range_m: 0.0,
+                    })
+                } else {
+                    located(Pose2::new(2.0, 0.0, 0.0))
+                }
+            }
+            other => panic!("never confirmed, so never driven: {other:?}"),
+        })
+    };
+    for f in 0..6 {
+        cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), &mut flaky);
+    }
+    assert!(!events(&mut m).iter().any(|e| matches!(e, Event::TargetSeen { .. })));
+}
+
+#[test]
+fn a_named_person_is_located_in_the_box_reid_matches_only() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![PlanStep { person: "Alice".into(), ..find(0, "person") }]);
+    let mut located_box = None;
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), |r| {
+        Ok(match r {
+            Request::StartStep { .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(10.0, 30.0), chair(70.0, 95.0)] },
+            Request::Identify { boxes, name } => {
+                assert_eq!((boxes.len(), name.as_str()), (2, "Alice"));
+                Reply::Identified(vec![
+                    Identity { box_index: 0, name: "bob".into(), similarity: 0.95, matched: true },
+                    Identity { box_index: 1, name: "alice".into(), similarity: 0.8, matched: true },
+                ])
+            }
+            Request::Locate { detection, .. } => {
+                located_box = Some(detection.x_min);
+                located(Pose2::new(2.0, 0.0, 0.0))
+            }
+            other => panic!("unexpected {other:?}"),
+        })
+    });
+    assert_eq!(located_box, Some(70.0));
+}
+
+#[test]
+fn a_confirmed_target_is_found_where_it_projects() {
+    // Robot at (1, 1) facing +y; the chair 3 m ahead of it, 0.5 m high (the camera's height).
+    let frame = at(0.0, 1.0, 1.0, FRAC_PI_2);
+    let chair_at = Vector3::new(1.0, 4.3, 0.5);
+    let Some(TargetView::At(u, v)) = target_view(&frame, &chair_at) else { panic!("the chair is in view") };
+    assert!((u - 80.0).abs() < 0.5 && (v - 60.0).abs() < 0.5, "({u}, {v})");
+    // Two chairs in the image: the one at the prediction, not the first or the most confident.
+    let other = Detection { score: 0.99, ..chair(5.0, 40.0) };
+    let boxes = vec![other, chair(70.0, 95.0)];
+    assert_eq!(box_at(&boxes, u, v).map(|b| b.x_min), Some(70.0));
+    // Only the other chair in view: nothing is the target.
+    assert_eq!(box_at(&boxes[..1], u, v), None);
+    // Turned away (the chair is now on the robot's left, outside the ±45° view).
+    assert_eq!(target_view(&at(0.0, 1.0, 1.0, 0.0), &chair_at), Some(TargetView::OutOfView));
+    // No camera in the frame: no prediction (the image-space rule applies).
+    assert_eq!(target_view(&Frame { camera: None, ..frame }, &chair_at), None);
+}
+
+#[test]
+fn an_unseen_target_is_searched_for_boundedly_then_asked_about() {
+    let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
+    let mut m = mission(vec![find(1, "bicycle")]);
+    let mut turns = Vec::new();
+    let mut frame = 0;
+    while !m.is_awaiting() {
+        assert!(frame < 200, "exploration is bounded");
+        let (cmd, asked) = cycle(
+            &mut m,
+            &p,
+            at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        assert_eq!(cmd.twist, Twist::ZERO);
+        turns.extend(asked.into_iter().filter_map(|r| match r {
+            Request::MoveGoal(q) => Some(q),
+            _ => None,
+        }));
+        frame += 1;
+    }
+    // Three turns of a look-around from where it began, a 2 m search leg, three more turns.
+    let turns_of_30: Vec<f64> = turns.iter().map(|q| q.yaw / FRAC_PI_6).collect();
+    for (got, want) in turns_of_30.iter().zip([1.0, 2.0, 3.0, 0.0, 1.0, 2.0, 3.0]) {
+        assert!((got - want).abs() < 1e-9, "{turns_of_30:?}");
+    }
+    assert_eq!(turns_of_30.len(), 7);
+    assert_eq!(turns[3].f_dist, p.search_leg_m);
+    let kinds: Vec<String> = events(&mut m)
+        .iter()
+        .filter_map(|e| match e {
+            Event::Exploring { phase, attempt, .. } => Some(format!("{phase:?} {attempt}")),
+            Event::StepFailed { reason, .. } => Some(reason.clone()),
+            Event::ClarificationNeeded { question, .. } => Some(question.question.clone()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        kinds,
+        vec![
+            "Scan 1",
+            "Search 1",
+            "Scan 2",
+            "step 1: the bicycle not found after looking all around and 1 search leg(s)",
+            "I could not find the bicycle. Where should I look, or should I skip it?",
+        ]
+    );
+    // Waiting for the user: the robot idles and no stage is asked anything.
+    let (cmd, asked) = cycle(&mut m, &p, at(100.0, 0.0, 0.0, 0.0), blind(|_| unreachable!()));
+    assert!(asked.is_empty() && !cmd.active && cmd.twist == Twist::ZERO);
+}
+
+#[test]
+fn exploration_is_bounded_scan_then_search_then_ask() {
+    let p = ExecutorParams { scan_turns: 3, search_legs: 1, ..Default::default() };
+    assert_eq!(after_look(0, 0, &p), ExplorePlan::Turn(1));
+    assert_eq!(after_look(1, 0, &p), ExplorePlan::Turn(2));
+    assert_eq!(after_look(2, 0, &p), ExplorePlan::Search(1));
+    assert_eq!(after_look(0, 1, &p), ExplorePlan::Turn(1));
+    assert_eq!(after_look(2, 1, &p), ExplorePlan::Ask);
+}
+
+#[test]
+fn a_drive_that_stops_converging_near_its_goal_settles_there() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(2.0, 0.0)]);
+    let mut t = 0.0;
+    // 0.4 m from a goal reached within 0.25 m: within the settle margin, but no closer for 3 s.
+    while t < p.settle_after_s {
+        cycle(&mut m, &p, at(t, 1.6, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.1, 0.4)));
+        assert!(!events(&mut m).iter().any(|e| matches!(e, Event::SubgoalReached { .. })), "settled early at {t}");
+        t += 0.5;
+    }
+    cycle(&mut m, &p, at(t, 1.6, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.1, 0.4)));
+    assert!(events(&mut m).iter().any(|e| matches!(e, Event::SubgoalReached { index: 0, .. })));
+}
+
+#[test]
+fn a_blocked_drive_asks_after_the_stuck_timeout() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    let mut t = 0.0;
+    while !m.is_awaiting() {
+        assert!(t <= p.stuck_timeout_s + 0.5, "still not asking at {t}");
+        cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Blocked, 0.0, 6.0)));
+        t += 0.5;
+    }
+    assert!(t > p.stuck_timeout_s);
+    match &events(&mut m)[..] {
+        [Event::StepStarted { .. }, Event::StepFailed { reason, .. }, Event::ClarificationNeeded { question, .. }] => {
+            assert_eq!(reason, "step 1: my way is blocked (6.0 m from the goal)");
+            assert!(question.question.starts_with("My way is blocked"));
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_step_that_outlasts_its_time_limit_asks() {
+    let p = ExecutorParams { step_timeout_s: 5.0, ..Default::default() };
+    let mut m = mission(vec![mv(60.0, 0.0)]);
+    for k in 0..=30 {
+        cycle(&mut m, &p, at(f64::from(k) * 0.2, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 60.0)));
+    }
+    assert!(m.is_awaiting());
+    assert!(
+        events(&mut m)
+            .iter()
+            .any(|e| matches!(e, Event::StepFailed { reason, .. } if reason.contains("did not finish within 5 s")))
+    );
+}
+
+#[test]
+fn a_failing_stage_is_retried_with_backoff_in_sensor_time_and_fails_the_mission_after_the_outage_limit() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(2.0, 0.0)]);
+    let segmenter_down = |r: &Request| match r {
+        Request::StartStep { move_goal, .. } => Ok(Reply::StepStarted { goal: move_goal.as_ref().map(goal_of) }),
+        Request::Perceive { .. } => Err(StageFailure { stage: "segmenter", message: "connection refused".into() }),
+        other => panic!("unexpected {other:?}"),
+    };
+    let mut tries = Vec::new();
+    let mut finished = None;
+    for k in 0..=110 {
+        let t = f64::from(k) * 0.1;
+        let (cmd, asked) = cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), segmenter_down);
+        assert_eq!(cmd.twist, Twist::ZERO, "the robot is held while a stage is down");
+        if !asked.is_empty() {
+            tries.push(t);
+        }
+        if cmd.finished.is_some() {
+            finished = Some((t, cmd));
+            break;
+        }
+        assert!(!cmd.active, "a held robot may idle (a lockstep robot is then paced in real time)");
+    }
+    // Tries at 0, 0.1, 0.3, 0.7, 1.5, then every second.
+    assert_eq!(&tries[..5].iter().map(|t| (t * 10.0_f64).round() as i32).collect::<Vec<_>>(), &[0, 1, 3, 7, 15]);
+    assert!(tries.len() < 20, "{tries:?}");
+    let (t, cmd) = finished.expect("the mission fails");
+    assert!((t - STAGE_OUTAGE_S).abs() < 1e-9, "failed at {t}");
+    assert_eq!(cmd.finished, Some(Outcome::Failed));
+    match events(&mut m).last() {
+        Some(Event::Finished { reason, .. }) => {
+            assert_eq!(
+                reason,
+                "the segmenter service failed: connection refused for 10 s of robot time; the robot was stopped"
+            )
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_stage_that_comes_back_resumes_the_step() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(2.0, 0.0)]);
+    let down = |r: &Request| match r {
+        Request::StartStep { .. } => Err(StageFailure { stage: "local-planner", message: "unavailable".into() }),
+        other => panic!("unexpected {other:?}"),
+    };
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), down);
+    let (cmd, asked) = cycle(&mut m, &p, at(0.3, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.7, 2.0)));
+    assert_eq!(asked.len(), 3, "start, perceive, drive: {asked:?}");
+    assert_eq!((cmd.twist.linear, cmd.active), (0.7, true));
+    // Recovered: a later failure starts a fresh outage (retry after 0.1 s).
+    cycle(&mut m, &p, at(20.0, 0.0, 0.0, 0.0), |_| Err(StageFailure { stage: "segmenter", message: "x".into() }));
+    let (_, asked) = cycle(&mut m, &p, at(20.1, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.7, 2.0)));
+    assert!(!asked.is_empty());
+}
+
+#[test]
+fn the_users_answer_replans_from_the_failed_step_and_the_mission_resumes() {
+    let p = ExecutorParams { step_timeout_s: 1.0, ..Default::default() };
+    let mut m = mission(vec![mv(1.0, 0.0), find(1, "bicycle")]);
+    assert!(m.planner_query("go on").is_err(), "nothing was asked yet");
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)));
+    for k in 1..=8 {
+        cycle(&mut m, &p, at(f64::from(k) * 0.2, 1.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)));
+    }
+    assert!(m.is_awaiting());
+    let Ok(PlannerQuery::Replan { failed_step, failure, answer, plan, .. }) = m.planner_query("skip it") else {
+        panic!("a replan")
+    };
+    assert_eq!((failed_step, answer.as_str(), plan.len()), (1, "skip it", 2));
+    assert!(failure.contains("did not finish within 1 s"), "{failure}");
+    // A further question keeps the mission waiting.
+    let q = Question { question: "Skip which?".into(), ..Default::default() };
+    assert_eq!(m.on_planner_reply("skip it", PlannerReply::Question(q.clone())), Err(q));
+    assert!(m.is_awaiting());
+    let revised =
+        m.on_planner_reply("go 1 m", PlannerReply::Plan { steps: vec![mv(1.0, 0.0)], plan_json: "[]".into() });
+    assert_eq!(revised.map(|p| p.len()), Ok(2), "the reached step and the revised rest");
+    assert!(!m.is_awaiting());
+    let (_, asked) = cycle(&mut m, &p, at(2.0, 1.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.5, 1.0)));
+    assert!(matches!(asked[0], Request::StartStep { index: 1, action: Action::Move, .. }));
+    assert!(events(&mut m).iter().any(|e| matches!(e, Event::Replanned { resume_index: 1, .. })));
+}
+
+#[test]
+fn a_follow_stays_with_its_target_until_its_time_is_up() {
+    let p = ExecutorParams { confirm_frames: 1, follow_default_s: 2.0, ..Default::default() };
+    let mut m = mission(vec![PlanStep { class_id: 0, target: "person".into(), ..step(Action::Follow) }]);
+    let mut k = 0;
+    let near = |r: &Request| -> Result<Reply, StageFailure> {
+        Ok(match r {
+            Request::StartStep { .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Locate { moving, .. } => {
+                assert!(moving);
+                located(Pose2::new(1.0, 0.0, 0.0))
+            }
+            Request::Drive { .. } => driven(DriveStatus::Reached, 0.3, 0.0),
+            other => panic!("unexpected {other:?}"),
+        })
+    };
+    loop {
+        let (cmd, _) = cycle(&mut m, &p, at(f64::from(k) * 0.5, 0.0, 0.0, 0.0), near);
+        // Within d_s is where a follower stays: zero, but still active.
+        assert_eq!((cmd.twist, cmd.active), (Twist::ZERO, true));
+        if events(&mut m).iter().any(|e| matches!(e, Event::SubgoalReached { .. })) {
+            break;
+        }
+        k += 1;
+        assert!(k < 20);
+    }
+    assert_eq!(k, 4, "followed for 2 s of sensor time");
+}
+
+#[test]
+fn metrics_come_from_frame_stamps_and_ground_truth() {
+    let mut m = MetricsAcc::default();
+    let truth = |x: f64, len: f64, soft: u32| Truth {
+        pose: Some(Pose2::new(x, 0.0, 0.0)),
+        path_length_m: len,
+        hard_collisions: 0,
+        soft_collisions: soft,
+        odom_origin: Some(Pose2::default()),
+    };
+    m.observe(10.0, &Pose2::new(0.0, 0.0, 0.0), Some(&truth(0.0, 5.0, 1)));
+    m.observe(10.1, &Pose2::new(0.3, 0.4, 0.0), Some(&truth(0.5, 5.5, 1)));
+    m.observe(12.0, &Pose2::new(0.3, 1.4, 0.0), Some(&truth(0.6, 6.6, 2)));
+    let p = m.metrics(2, 3, 1, Some(&Pose2::new(1.0, 0.0, 0.0)));
+    assert!((p.duration_s - 2.0).abs() < 1e-9);
+    assert!((p.odom_path_length_m - 1.5).abs() < 1e-9);
+    assert_eq!(p.frames, 3);
+    assert!(p.has_ground_truth);
+    assert!((p.true_path_length_m - 1.6).abs() < 1e-9);
+    assert_eq!(p.soft_collisions, 1);
+    assert!((p.final_error_m - 0.4).abs() < 1e-9);
+}
+
+#[test]
+fn composing_poses_follows_rep105() {
+    let c = compose(&Pose2::new(1.0, 2.0, FRAC_PI_2), &Pose2::new(1.0, 0.0, 0.0));
+    assert!((c.x - 1.0).abs() < 1e-12 && (c.y - 3.0).abs() < 1e-12);
+    assert!((c.theta - FRAC_PI_2).abs() < 1e-12);
+}

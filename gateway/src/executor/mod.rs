@@ -1,0 +1,184 @@
+//! The mission executor: the pure state machine (`machine`) over domain types
+//! (`model`), and this adapter, which feeds it sensor frames, answers its
+//! requests through the stage services over gRPC (`grpc`), records its events
+//! in the mission store and traces each control cycle.
+
+pub mod grpc;
+pub mod machine;
+pub mod model;
+
+use tracing::Instrument;
+use tracing_opentelemetry::OpenTelemetrySpanExt;
+use vlnav_proto::v1::{ActionStep, Clarification, MissionState, SensorFrame, Twist2D};
+
+use crate::config::ExecutorParams;
+use crate::hub::Hub;
+use crate::pipeline::Pipeline;
+use machine::{Mission, Next, PlannerQuery, Request};
+
+pub struct Ctx<'a> {
+    pub pipeline: &'a Pipeline,
+    pub params: &'a ExecutorParams,
+    pub hub: &'a Hub,
+}
+
+/// What the executor tells the robot after a frame.
+pub struct Tick {
+    pub twist: Twist2D,
+    /// False while the robot may idle (waiting for the user or for a stage).
+    pub active: bool,
+    /// Set when the mission reached a terminal state on this frame.
+    pub finished: Option<MissionState>,
+    /// The control-cycle span of this frame (parent of the edge-forward span).
+    pub span: tracing::Span,
+}
+
+impl Tick {
+    fn idle() -> Self {
+        Tick { twist: Twist2D::default(), active: false, finished: None, span: tracing::Span::none() }
+    }
+}
+
+/// One mission on one robot: the state machine and its trace spans.
+pub struct MissionRun {
+    pub mission_id: String,
+    pub robot_id: String,
+    machine: Mission,
+    span: tracing::Span,
+    /// The span of the step under way.
+    step_span: tracing::Span,
+}
+
+impl MissionRun {
+    /// A run of `plan`; `awaiting` holds a question asked before execution.
+    pub fn new(
+        mission_id: String,
+        robot_id: String,
+        instruction: String,
+        plan: Vec<ActionStep>,
+        awaiting: Option<Clarification>,
+        span: tracing::Span,
+    ) -> Self {
+        let plan = plan.iter().map(grpc::step_from_proto).collect();
+        let question = awaiting.as_ref().map(grpc::question_from_proto);
+        Self {
+            machine: Mission::new(mission_id.clone(), instruction, plan, question),
+            mission_id,
+            robot_id,
+            span,
+            step_span: tracing::Span::none(),
+        }
+    }
+
+    pub fn is_awaiting(&self) -> bool {
+        self.machine.is_awaiting()
+    }
+
+    /// Writes the machine's new events to the mission store, in order.
+    /// `on_frame` leaves its last frame's events for the robot's actor to
+    /// flush once it has updated what it reports of the robot.
+    pub fn flush(&mut self, ctx: &Ctx<'_>) {
+        self.record(ctx.hub);
+    }
+
+    fn record(&mut self, hub: &Hub) {
+        for stamped in self.machine.take_events() {
+            let (kind, change) = grpc::event_to_proto(stamped.event);
+            if let Err(e) = hub.record(&self.mission_id, stamped.stamp, Some(kind), change) {
+                tracing::error!(mission = %self.mission_id, "cannot record event: {e}");
+            }
+        }
+    }
+
+    /// Ends the mission: the user cancelled it.
+    pub fn cancel(&mut self, ctx: &Ctx<'_>) {
+        self.machine.cancel();
+        self.record(ctx.hub);
+    }
+
+    /// One sensor frame in, one velocity command out.
+    pub async fn on_frame(&mut self, ctx: &Ctx<'_>, sf: &SensorFrame) -> Tick {
+        let Some(frame) = sf.frame.as_ref() else { return Tick::idle() };
+        if self.machine.is_awaiting() {
+            return Tick::idle();
+        }
+        let parent = if self.machine.has_step() { self.step_span.clone() } else { self.span.clone() };
+        let cycle =
+            tracing::info_span!(parent: &parent, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
+        let robot_id = self.robot_id.clone();
+        let mut stages = grpc::Stages { pipeline: ctx.pipeline, robot_id: &robot_id, frame, no_go: Vec::new() };
+        let mut next = self.machine.on_frame(ctx.params, grpc::frame_from_proto(frame, sf.truth.as_ref()));
+        let command = loop {
+            let request = match next {
+                Next::Done(command) => break command,
+                Next::Call(request) => request,
+            };
+            self.record(ctx.hub);
+            let span = match &request {
+                Request::StartStep { index, action, desc, .. } => {
+                    self.step_span = tracing::info_span!(parent: &self.span, "step", step.index = index, step.action = ?action, step.desc = %desc);
+                    self.step_span.clone()
+                }
+                _ => cycle.clone(),
+            };
+            next = match stages.call(request).instrument(span).await {
+                Ok(reply) => self.machine.on_reply(ctx.params, reply),
+                Err(failure) => {
+                    tracing::warn!(parent: &cycle, mission = %self.mission_id, "holding the robot: {failure}");
+                    self.machine.on_stage_error(failure)
+                }
+            };
+        };
+        Tick {
+            twist: Twist2D { linear: command.twist.linear, angular: command.twist.angular },
+            active: command.active,
+            finished: command.finished.map(grpc::outcome_to_proto),
+            span: cycle,
+        }
+    }
+
+    /// The user's answer: the planner revises the steps from the one that
+    /// failed on. Returns the revised full plan, or a further question.
+    pub async fn answer(
+        &mut self,
+        ctx: &Ctx<'_>,
+        answer: &str,
+    ) -> Result<Result<Vec<ActionStep>, Clarification>, tonic::Status> {
+        let query =
+            self.machine.planner_query(answer).map_err(|e| tonic::Status::failed_precondition(e.to_string()))?;
+        let mut planner = ctx.pipeline.planner.clone();
+        let response = match query {
+            PlannerQuery::Plan { instruction } => {
+                planner
+                    .plan(vlnav_proto::v1::PlanRequest { instruction, backend: String::new() })
+                    .instrument(self.span.clone())
+                    .await
+            }
+            PlannerQuery::Replan { instruction, plan, failed_step, failure, answer } => {
+                planner
+                    .replan(vlnav_proto::v1::ReplanRequest {
+                        instruction,
+                        plan: Some(vlnav_proto::v1::ActionPlan {
+                            steps: plan.iter().map(grpc::step_to_proto).collect(),
+                        }),
+                        failed_step,
+                        failure,
+                        answer,
+                        backend: String::new(),
+                    })
+                    .instrument(self.span.clone())
+                    .await
+            }
+        }?
+        .into_inner();
+        let result = self.machine.on_planner_reply(answer, grpc::planner_reply(response)?);
+        self.record(ctx.hub);
+        Ok(result.map(|plan| plan.iter().map(grpc::step_to_proto).collect()).map_err(|q| grpc::question_to_proto(&q)))
+    }
+
+    /// The W3C trace id of this mission.
+    pub fn trace_id(&self) -> String {
+        use opentelemetry::trace::TraceContextExt;
+        self.span.context().span().span_context().trace_id().to_string()
+    }
+}
