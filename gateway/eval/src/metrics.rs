@@ -23,6 +23,7 @@
 //! - **Mission time**: sensor seconds from the first executed frame to the end
 //!   (frame stamps, never the wall clock).
 
+use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
 
 /// How an instruction guides the robot (Table IV's three columns).
@@ -84,49 +85,19 @@ impl Point2 {
     }
 }
 
-/// A planar pose, metres and radians.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Pose {
-    pub x: f64,
-    pub y: f64,
-    pub theta: f64,
-}
+/// A planar pose, metres and radians: the shared one.
+pub use vlnav_geometry::{Pose2 as Pose, wrap_angle};
 
-impl Pose {
-    pub const fn new(x: f64, y: f64, theta: f64) -> Self {
-        Self { x, y, theta }
-    }
-
-    pub fn position(self) -> Point2 {
-        Point2::new(self.x, self.y)
-    }
-
-    /// `self ⊕ local`: a pose expressed in this pose's frame, moved to the
-    /// frame this pose is expressed in.
-    pub fn compose(self, local: Pose) -> Pose {
-        let (s, c) = self.theta.sin_cos();
-        Pose {
-            x: self.x + c * local.x - s * local.y,
-            y: self.y + s * local.x + c * local.y,
-            theta: wrap_angle(self.theta + local.theta),
-        }
-    }
-
-    /// A point expressed in this pose's frame, moved to the outer frame.
-    pub fn transform(self, p: Point2) -> Point2 {
-        let q = self.compose(Pose::new(p.x, p.y, 0.0));
-        Point2::new(q.x, q.y)
+impl From<Vector2<f64>> for Point2 {
+    fn from(v: Vector2<f64>) -> Self {
+        Point2::new(v.x, v.y)
     }
 }
 
-/// Wraps an angle to (−π, π].
-pub fn wrap_angle(a: f64) -> f64 {
-    let tau = std::f64::consts::TAU;
-    let mut w = a.rem_euclid(tau);
-    if w > std::f64::consts::PI {
-        w -= tau;
+impl From<Point2> for Vector2<f64> {
+    fn from(p: Point2) -> Self {
+        Vector2::new(p.x, p.y)
     }
-    w
 }
 
 /// How a mission ended, as the harness saw it.
@@ -177,7 +148,7 @@ pub struct TruthSample {
 impl TruthSample {
     /// Where odometry believed the robot was, drawn in the world frame.
     pub fn odom_in_world(&self) -> Pose {
-        self.odom_origin.compose(self.odom)
+        self.odom_origin.compose(&self.odom)
     }
 }
 
@@ -224,7 +195,7 @@ impl ContactAccount {
 
 /// Length of a polyline through the track's true positions.
 pub fn path_length(track: &[TruthSample]) -> f64 {
-    track.windows(2).map(|w| w[0].pose.position().distance(w[1].pose.position())).sum()
+    track.windows(2).map(|w| w[0].pose.distance(&w[1].pose)).sum()
 }
 
 /// Everything measured about one trial.
@@ -393,23 +364,6 @@ pub(crate) mod tests {
         b.pose = Pose::new(3.0, 4.0, 0.0);
         c.pose = Pose::new(3.0, 5.0, 0.0);
         assert!((path_length(&[a, b, c]) - 6.0).abs() < 1e-12);
-    }
-
-    #[test]
-    fn poses_compose_like_rigid_transforms() {
-        let origin = Pose::new(1.0, 2.0, std::f64::consts::FRAC_PI_2);
-        let p = origin.transform(Point2::new(1.0, 0.0));
-        assert!((p.x - 1.0).abs() < 1e-12 && (p.y - 3.0).abs() < 1e-12);
-        let q = origin.compose(Pose::new(0.0, 0.0, std::f64::consts::PI));
-        assert!((q.theta + std::f64::consts::FRAC_PI_2).abs() < 1e-12);
-    }
-
-    #[test]
-    fn angles_wrap_to_the_half_open_interval() {
-        use std::f64::consts::PI;
-        assert!((wrap_angle(3.0 * PI) - PI).abs() < 1e-12);
-        assert!((wrap_angle(-PI) - PI).abs() < 1e-12);
-        assert!((wrap_angle(0.5) - 0.5).abs() < 1e-12);
     }
 
     #[test]

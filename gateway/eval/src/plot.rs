@@ -110,7 +110,7 @@ fn bounds(scene: &PlotScene) -> (Point2, Point2) {
     for p in scene.true_path.iter().chain(&scene.odom_path).chain(&scene.subgoals).chain(&scene.target_estimates) {
         add(*p, 0.0);
     }
-    add(scene.start.position(), 0.5);
+    add(scene.start.position().into(), 0.5);
     add(scene.destination, scene.success_radius);
     if !min.x.is_finite() {
         return (Point2::new(-1.0, -1.0), Point2::new(1.0, 1.0));
@@ -244,9 +244,8 @@ pub fn render_svg(scene: &PlotScene) -> String {
     }
     // Start: a triangle pointing along the start heading.
     let st = scene.start;
-    let tip = st.transform(Point2::new(0.6, 0.0));
-    let left = st.transform(Point2::new(-0.3, 0.3));
-    let right = st.transform(Point2::new(-0.3, -0.3));
+    let corner = |x: f64, y: f64| Point2::from(st.transform(&Point2::new(x, y).into()));
+    let (tip, left, right) = (corner(0.6, 0.0), corner(-0.3, 0.3), corner(-0.3, -0.3));
     let _ = writeln!(
         s,
         r##"<polygon class="start" points="{}" fill="#1155cc" stroke="#0b3d91"/>"##,

@@ -56,14 +56,6 @@ pub fn load_world(path: &Path) -> anyhow::Result<LoadedWorld> {
     Ok(LoadedWorld { path: path.to_path_buf(), text, world })
 }
 
-fn pose_of(p: &vlnav_sim::Pose2) -> Pose {
-    Pose::new(p.x, p.y, p.theta)
-}
-
-fn sim_pose(p: Pose) -> vlnav_sim::Pose2 {
-    vlnav_sim::Pose2::new(p.x, p.y, p.theta)
-}
-
 /// The world file's text with the robot's start replaced by `start`.
 pub fn with_start(text: &str, start: Pose) -> anyhow::Result<String> {
     let mut doc: toml::Table = toml::from_str(text).context("world file is not valid TOML")?;
@@ -79,7 +71,7 @@ pub fn with_start(text: &str, start: Pose) -> anyhow::Result<String> {
 /// no-go marking (soft), at simulation time `t` (pedestrians move).
 pub fn contact_at(world: &World, pose: Pose, t: f64) -> (bool, bool) {
     let params = vlnav_sim::HuskyParams::default();
-    let rect = OrientedRect::new(sim_pose(pose), params.length, params.width);
+    let rect = OrientedRect::new(pose, params.length, params.width);
     let near = rect.inflate(CONTACT_MARGIN_M);
     let hard = world.solids.iter().any(|s| near.overlaps(&s.shape))
         || world.pedestrians.iter().any(|p| near.overlaps(&p.shape_at(t)));
@@ -137,8 +129,8 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
     let scenario = &ctx.suite.scenarios[spec.scenario];
     let loaded = &ctx.worlds[spec.scenario];
     let instruction = &scenario.instructions[spec.instruction];
-    let nominal = pose_of(&loaded.world.start);
-    let start = nominal.compose(spec.start_offset);
+    let nominal = loaded.world.start;
+    let start = nominal.compose(&spec.start_offset);
     let text = instruction.text(nominal);
     let mut record = TrialRecord {
         scenario: scenario.name.clone(),
@@ -152,7 +144,7 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
         steps_total: 0,
         destination: instruction.destination(),
         success_radius_m: instruction.radius,
-        final_position: start.position(),
+        final_position: start.position().into(),
         path_length_m: 0.0,
         odom_path_length_m: 0.0,
         duration_s: 0.0,
@@ -224,13 +216,13 @@ fn truth_track(world: &World, steps: &[StepRecord]) -> Vec<TruthSample> {
         .iter()
         .filter_map(|s| {
             let t = s.truth.as_ref()?;
-            let pose = pose_of(&t.pose);
+            let pose = t.pose;
             let (hard, soft) = contact_at(world, pose, t.stamp);
             Some(TruthSample {
                 stamp: s.stamp,
                 pose,
-                odom: pose_of(&s.odom),
-                odom_origin: pose_of(&t.odom_origin),
+                odom: s.odom,
+                odom_origin: t.odom_origin,
                 hard_contact: hard,
                 soft_contact: soft,
             })
@@ -300,11 +292,11 @@ pub fn world_scene(world: &World, title: String, start: Pose) -> PlotScene {
 pub fn layout_scene(suite: &Suite, scenario: usize, instruction: usize, world: &World) -> PlotScene {
     let sc = &suite.scenarios[scenario];
     let ins = &sc.instructions[instruction];
-    let start = pose_of(&world.start);
+    let start = world.start;
     let mut scene = world_scene(world, format!("{} — {} — \"{}\"", sc.title, ins.mode, ins.text(start)), start);
     scene.destination = ins.destination();
     scene.success_radius = ins.radius;
-    let mut from = start.position();
+    let mut from: Point2 = start.position().into();
     for leg in &ins.route {
         from = leg.end_point(from);
         scene.subgoals.push(from);
@@ -323,16 +315,16 @@ fn plot_scene(
     let mut scene = world_scene(world, title, start);
     scene.destination = record.destination;
     scene.success_radius = record.success_radius_m;
-    scene.true_path = track.iter().map(|s| s.pose.position()).collect();
-    scene.odom_path = track.iter().map(|s| s.odom_in_world().position()).collect();
+    scene.true_path = track.iter().map(|s| s.pose.position().into()).collect();
+    scene.odom_path = track.iter().map(|s| s.odom_in_world().position().into()).collect();
     for (stamp, goal) in &watched.subgoals {
         if let Some(o) = origin_at(track, *stamp) {
-            scene.subgoals.push(o.transform(Point2::new(goal.x, goal.y)));
+            scene.subgoals.push(o.transform(&Point2::new(goal.x, goal.y).into()).into());
         }
     }
     for (stamp, target) in &watched.targets {
         if let Some(o) = origin_at(track, *stamp) {
-            scene.target_estimates.push(o.transform(Point2::new(target.x, target.y)));
+            scene.target_estimates.push(o.transform(&Point2::new(target.x, target.y).into()).into());
         }
     }
     scene

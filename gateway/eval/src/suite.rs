@@ -238,7 +238,7 @@ pub fn geometric_text(start: Pose, route: &[Leg]) -> String {
     let mut pose = start;
     let mut parts = Vec::new();
     for leg in route {
-        let target = leg.end_point(pose.position());
+        let target = leg.end_point(pose.position().into());
         let dx = target.x - pose.x;
         let dy = target.y - pose.y;
         let dist = dx.hypot(dy);

@@ -97,14 +97,14 @@ fn no_start_the_noise_can_draw_touches_anything() {
         for dx in [-xy, xy] {
             for dy in [-xy, xy] {
                 for dt in [-th, th] {
-                    let p = nominal.compose(Pose::new(dx, dy, dt));
+                    let p = nominal.compose(&Pose::new(dx, dy, dt));
                     assert_eq!(contact_at(w, p, 0.0), (false, false), "{}: start {p:?} is not free", sc.name);
                 }
             }
         }
         // And the actual draws of a full run.
         for t in plan_trials(&s, 50, 1, &[]).iter().filter(|t| s.scenarios[t.scenario].name == sc.name) {
-            let p = nominal.compose(t.start_offset);
+            let p = nominal.compose(&t.start_offset);
             assert_eq!(contact_at(w, p, 0.0), (false, false), "{} trial {}: start not free", sc.name, t.trial);
         }
     }

@@ -5,6 +5,8 @@
 use nalgebra::Vector3;
 use vlnav_proto::v1 as pb;
 
+use vlnav_geometry::convert::{self, goal_to_proto, pose_to_proto};
+
 use super::machine::{MoveQuery, PlannerReply, Reply, Request, StageFailure};
 use super::model::*;
 use crate::pipeline::Pipeline;
@@ -106,7 +108,7 @@ impl Stages<'_> {
                 };
                 Ok(Reply::Located(Estimate {
                     status,
-                    goal: est.goal.as_ref().map(goal_from_proto),
+                    goal: est.goal.as_ref().map(goal_from_proto).transpose()?,
                     fused_target: est.fused_target.map(|p| Vector3::new(p.x, p.y, p.z)),
                     range_m: est.range_m,
                 }))
@@ -160,7 +162,7 @@ impl Stages<'_> {
             .await
             .map_err(stage("subgoal"))?
             .into_inner();
-        Ok(goal_from_proto(&goal))
+        goal_from_proto(&goal)
     }
 
     fn segment(&self) -> impl Future<Output = Result<Vec<pb::Point3>, StageFailure>> + use<> {
@@ -190,30 +192,17 @@ fn depth_only(f: &pb::RgbdFrame) -> pb::RgbdFrame {
     }
 }
 
-pub fn pose_from_proto(p: &pb::Pose2D) -> Pose2 {
-    Pose2 { x: p.x, y: p.y, theta: p.theta }
+/// A pose the robot reported (a frame's odometry, a goal the robot was
+/// given): the edge agent's frame checks (`gateway/src/frames.rs`) have
+/// already refused non-finite ones.
+fn pose_from_proto(p: &pb::Pose2D) -> Pose2 {
+    Pose2::new(p.x, p.y, p.theta)
 }
 
-pub fn pose_to_proto(p: &Pose2) -> pb::Pose2D {
-    pb::Pose2D { x: p.x, y: p.y, theta: p.theta }
-}
-
-fn goal_from_proto(g: &pb::Goal) -> Goal {
-    Goal {
-        pose: g.pose.as_ref().map(pose_from_proto).unwrap_or_default(),
-        position_tolerance: g.position_tolerance,
-        yaw_tolerance: g.yaw_tolerance,
-        rotation_only: g.rotation_only,
-    }
-}
-
-fn goal_to_proto(g: &Goal) -> pb::Goal {
-    pb::Goal {
-        pose: Some(pose_to_proto(&g.pose)),
-        position_tolerance: g.position_tolerance,
-        yaw_tolerance: g.yaw_tolerance,
-        rotation_only: g.rotation_only,
-    }
+/// A goal from the subgoal service, checked.
+fn goal_from_proto(g: &pb::Goal) -> Result<Goal, StageFailure> {
+    convert::goal_from_proto(Some(g), "goal")
+        .map_err(|e| StageFailure { stage: "subgoal", message: format!("it returned an unusable goal: {e}") })
 }
 
 fn detection_from_proto(b: &pb::BoundingBox) -> Detection {
@@ -242,12 +231,12 @@ fn detection_to_proto(b: &Detection) -> pb::BoundingBox {
 
 /// What the state machine sees of a sensor frame.
 pub fn frame_from_proto(f: &pb::RgbdFrame, truth: Option<&pb::SimTruth>) -> Frame {
-    let defaults = vlnav_subgoal::grpc::DepthDefaults { min_m: 0.0, max_m: 1e3 };
+    let defaults = convert::DepthDefaults { min_m: 0.0, max_m: 1e3 };
     Frame {
         seq: f.seq,
         stamp: f.stamp,
         pose: f.odom.as_ref().map(pose_from_proto).unwrap_or_default(),
-        camera: vlnav_subgoal::grpc::camera_from_proto(f.camera.as_ref(), "frame.camera", defaults).ok(),
+        camera: convert::camera_from_proto(f.camera.as_ref(), "frame.camera", defaults).ok(),
         truth: truth.map(|t| Truth {
             pose: t.pose.as_ref().map(pose_from_proto),
             path_length_m: t.path_length_m,

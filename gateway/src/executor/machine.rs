@@ -30,8 +30,8 @@
 //!   stays down for `STAGE_OUTAGE_S` fails the mission with the stage's name.
 
 use nalgebra::{Vector2, Vector3};
-use vlnav_subgoal::camera::Projector;
-use vlnav_subgoal::geometry::wrap_angle as wrap;
+use vlnav_geometry::camera::Projector;
+use vlnav_geometry::wrap_angle as wrap;
 
 use super::model::*;
 use crate::config::ExecutorParams;
@@ -320,18 +320,12 @@ impl MetricsAcc {
             m.hard_collisions = b.hard_collisions.saturating_sub(a.hard_collisions);
             m.soft_collisions = b.soft_collisions.saturating_sub(a.soft_collisions);
             if let (Some(goal), Some(origin), Some(truth)) = (last_goal, b.odom_origin.as_ref(), b.pose.as_ref()) {
-                let world_goal = compose(origin, goal);
+                let world_goal = origin.compose(goal);
                 m.final_error_m = (truth.x - world_goal.x).hypot(truth.y - world_goal.y);
             }
         }
         m
     }
-}
-
-/// `a ⊕ b`: pose b expressed in a's frame, mapped to a's parent frame.
-pub fn compose(a: &Pose2, b: &Pose2) -> Pose2 {
-    let (s, c) = a.theta.sin_cos();
-    Pose2 { x: a.x + c * b.x - s * b.y, y: a.y + s * b.x + c * b.y, theta: wrap(a.theta + b.theta) }
 }
 
 /// Where a MOVE starts from: the robot's position, facing the course of the
@@ -353,7 +347,7 @@ enum TargetView {
 fn target_view(frame: &Frame, target: &Vector3<f64>) -> Option<TargetView> {
     let camera = frame.camera.as_ref()?;
     let (w, h) = (camera.width as f64, camera.height as f64);
-    let base = frame.pose.odom_to_base(&Vector2::new(target.x, target.y));
+    let base = frame.pose.inverse_transform(&Vector2::new(target.x, target.y));
     let pixel = Projector::new(camera).pixel_of(Vector3::new(base.x, base.y, target.z));
     Some(match pixel {
         Some((u, v, _)) if (0.0..w).contains(&u) && (0.0..h).contains(&v) => TargetView::At(u as f32, v as f32),

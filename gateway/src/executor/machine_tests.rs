@@ -4,7 +4,7 @@
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_6};
 
 use super::*;
-use vlnav_subgoal::camera::{Camera, Intrinsics, Mount};
+use vlnav_geometry::camera::{Camera, Intrinsics, Mount};
 
 fn step(action: Action) -> PlanStep {
     PlanStep {
@@ -547,11 +547,4 @@ fn metrics_come_from_frame_stamps_and_ground_truth() {
     assert!((p.true_path_length_m - 1.6).abs() < 1e-9);
     assert_eq!(p.soft_collisions, 1);
     assert!((p.final_error_m - 0.4).abs() < 1e-9);
-}
-
-#[test]
-fn composing_poses_follows_rep105() {
-    let c = compose(&Pose2::new(1.0, 2.0, FRAC_PI_2), &Pose2::new(1.0, 0.0, 0.0));
-    assert!((c.x - 1.0).abs() < 1e-12 && (c.y - 3.0).abs() < 1e-12);
-    assert!((c.theta - FRAC_PI_2).abs() < 1e-12);
 }

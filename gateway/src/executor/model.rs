@@ -3,8 +3,8 @@
 //! the gRPC adapter (`executor/grpc.rs`) converts at the edge.
 
 use nalgebra::Vector3;
-use vlnav_subgoal::camera::Camera;
-pub use vlnav_subgoal::geometry::Pose2;
+use vlnav_geometry::camera::Camera;
+pub use vlnav_geometry::{GoalSpec as Goal, Pose2};
 
 pub use vlnav_edge_agent::Twist;
 
@@ -61,15 +61,6 @@ pub struct PlanStep {
     pub d_s: f64,
     /// FOLLOW: seconds to follow (0: the default).
     pub duration_s: f64,
-}
-
-/// A goal in `odom`, with how close counts as reached.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Goal {
-    pub pose: Pose2,
-    pub position_tolerance: f64,
-    pub yaw_tolerance: f64,
-    pub rotation_only: bool,
 }
 
 /// A detected box in image pixels.

@@ -2,19 +2,20 @@
 //! actor, convert back. Errors are mapped to gRPC status codes in one place.
 
 use tonic::{Request, Response, Status};
+use vlnav_geometry::convert::{InvalidField, encoded_image_from_proto};
+use vlnav_geometry::rgb::{ImageError, decode_off_thread};
 use vlnav_proto::v1::{self, detector_service_server::DetectorService};
 use vlnav_runtime::actor::Mailbox;
 
 use crate::actor::{BackendInfo, DetectError, Input, InputKind, Job, Msg};
 use crate::detection::{DetectFilter, Detection};
-use crate::preprocess::{self, Encoding, ImageError};
 use crate::sim::{self, Instance, LabelError, LabeledFrame};
 
 /// Everything that can go wrong in a Detect call, mapped once to a status.
 #[derive(Debug, thiserror::Error)]
 pub enum ServiceError {
-    #[error("{field}: {msg}")]
-    Invalid { field: &'static str, msg: String },
+    #[error(transparent)]
+    Invalid(#[from] InvalidField),
     #[error(transparent)]
     Detect(#[from] DetectError),
     #[error(transparent)]
@@ -24,7 +25,7 @@ pub enum ServiceError {
 impl From<ServiceError> for Status {
     fn from(e: ServiceError) -> Self {
         match &e {
-            ServiceError::Invalid { .. } | ServiceError::Detect(DetectError::InvalidArgument(_)) => {
+            ServiceError::Invalid(_) | ServiceError::Detect(DetectError::InvalidArgument(_)) => {
                 Status::invalid_argument(e.to_string())
             }
             ServiceError::Detect(DetectError::Internal(_)) => Status::internal(e.to_string()),
@@ -33,13 +34,13 @@ impl From<ServiceError> for Status {
     }
 }
 
-fn invalid(field: &'static str, msg: impl Into<String>) -> ServiceError {
-    ServiceError::Invalid { field, msg: msg.into() }
+fn invalid(field: &str, msg: impl Into<String>) -> ServiceError {
+    InvalidField::new(field, msg).into()
 }
 
 impl From<ImageError> for ServiceError {
     fn from(e: ImageError) -> Self {
-        invalid("frame.rgb", e.to_string())
+        e.in_field("frame.rgb").into()
     }
 }
 
@@ -87,18 +88,7 @@ pub fn filter_from_request(
 /// Decodes `frame.rgb` (off the async threads: JPEG decoding takes milliseconds).
 async fn rgb_input(frame: &v1::RgbdFrame) -> Result<Input, ServiceError> {
     let rgb = frame.rgb.as_ref().ok_or_else(|| invalid("frame.rgb", "is required by this backend"))?;
-    let encoding = match v1::ImageEncoding::try_from(rgb.encoding) {
-        Ok(v1::ImageEncoding::Rgb8) => Encoding::Rgb8,
-        Ok(v1::ImageEncoding::Png) => Encoding::Png,
-        Ok(v1::ImageEncoding::Jpeg) => Encoding::Jpeg,
-        Ok(v1::ImageEncoding::Unspecified) => return Err(ImageError::Unspecified.into()),
-        Err(_) => return Err(invalid("frame.rgb.encoding", format!("unknown encoding {}", rgb.encoding))),
-    };
-    let (w, h, data) = (rgb.width, rgb.height, rgb.data.clone());
-    let img = tokio::task::spawn_blocking(move || preprocess::decode(encoding, w, h, &data))
-        .await
-        .map_err(|e| ServiceError::Detect(DetectError::Internal(e.to_string())))??;
-    Ok(Input::Rgb(img))
+    Ok(Input::Rgb(decode_off_thread(encoded_image_from_proto(rgb)?).await?))
 }
 
 /// Parses `frame.labels` and the aligned `frame.depth`.

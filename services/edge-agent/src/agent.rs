@@ -16,6 +16,7 @@ use anyhow::Context;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 use tonic::Streaming;
+use vlnav_geometry::convert::pose_to_proto;
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::fleet_service_client::FleetServiceClient;
 use vlnav_runtime::CancellationToken;
@@ -215,7 +216,7 @@ impl SimRobot {
             truth: Some(convert::sim_truth(&truth)),
         };
         let odo =
-            pb::OdometryUpdate { stamp, pose: Some(convert::pose(&odom.pose)), twist: Some(convert::twist(&wheel)) };
+            pb::OdometryUpdate { stamp, pose: Some(pose_to_proto(&odom.pose)), twist: Some(convert::twist(&wheel)) };
         self.seq += 1;
         (frame, odo, truth, odom)
     }

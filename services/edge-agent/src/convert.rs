@@ -1,5 +1,6 @@
 //! Conversions between the drivers' plain types and the `vlnav.v1` messages.
 
+use vlnav_geometry::convert::pose_to_proto;
 use vlnav_proto::v1 as pb;
 use vlnav_sim::camera::CameraConfig;
 use vlnav_sim::{Frame, Pose2, Truth, Twist};
@@ -12,10 +13,6 @@ pub struct RobotDescription {
     pub limits: Limits,
     pub footprint_length: f64,
     pub footprint_width: f64,
-}
-
-pub fn pose(p: &Pose2) -> pb::Pose2D {
-    pb::Pose2D { x: p.x, y: p.y, theta: p.theta }
 }
 
 pub fn twist(t: &Twist) -> pb::Twist2D {
@@ -84,7 +81,7 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
             data: f.rgb.clone(),
         }),
         depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: u16_le(&f.depth_mm) }),
-        odom: Some(pose(&meta.odom)),
+        odom: Some(pose_to_proto(&meta.odom)),
         odom_twist: Some(twist(&meta.odom_twist)),
         labels: Some(pb::LabelImage {
             width: f.width,
@@ -106,11 +103,11 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
 
 pub fn sim_truth(t: &Truth) -> pb::SimTruth {
     pb::SimTruth {
-        pose: Some(pose(&t.pose)),
+        pose: Some(pose_to_proto(&t.pose)),
         path_length_m: t.path_length_m,
         hard_collisions: t.hard_collisions,
         soft_collisions: t.soft_collisions,
-        odom_origin: Some(pose(&t.odom_origin)),
+        odom_origin: Some(pose_to_proto(&t.odom_origin)),
     }
 }
 

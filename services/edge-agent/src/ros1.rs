@@ -13,6 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use tokio::sync::mpsc;
+use vlnav_geometry::convert::pose_to_proto;
 use vlnav_proto::v1 as pb;
 use vlnav_runtime::CancellationToken;
 use vlnav_sim::{Pose2, Twist};
@@ -424,12 +425,12 @@ async fn ros_session(
                     camera: Some(camera_info(opts, f.width, f.height, f.intrinsics)),
                     rgb: Some(pb::Image { width: f.width, height: f.height, encoding: pb::ImageEncoding::Rgb8 as i32, data: f.rgb }),
                     depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: f.depth_mm_le }),
-                    odom: Some(convert::pose(&odom_pose)),
+                    odom: Some(pose_to_proto(&odom_pose)),
                     odom_twist: Some(convert::twist(&odom_twist)),
                     labels: None,
                 };
                 seq += 1;
-                let odo = pb::OdometryUpdate { stamp: f.stamp, pose: Some(convert::pose(&odom_pose)), twist: Some(convert::twist(&odom_twist)) };
+                let odo = pb::OdometryUpdate { stamp: f.stamp, pose: Some(pose_to_proto(&odom_pose)), twist: Some(convert::twist(&odom_twist)) };
                 for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(pb::SensorFrame { frame: Some(frame), truth: None }))] {
                     if let Err(e) = link.offer(msg) { return SessionEnd::Lost(e); }
                 }

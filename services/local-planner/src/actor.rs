@@ -5,9 +5,10 @@ use std::collections::HashMap;
 use std::sync::Arc;
 
 use tokio::sync::{mpsc, oneshot};
+use vlnav_geometry::camera::Camera;
+use vlnav_geometry::depth::DepthView;
+use vlnav_geometry::{GoalSpec, Pose2};
 use vlnav_runtime::actor::Mailbox;
-use vlnav_subgoal::camera::{Camera, DepthView};
-use vlnav_subgoal::geometry::{GoalSpec, Pose2};
 
 use crate::cloud::{CloudBuilder, CloudParams};
 use crate::control::{FollowParams, RobotState, StepInput, StepOutput, View};

@@ -14,7 +14,8 @@
 //! the semantic cost.
 
 use nalgebra::Vector3;
-use vlnav_subgoal::camera::{Camera, DepthView};
+use vlnav_geometry::camera::Camera;
+use vlnav_geometry::depth::DepthView;
 
 /// Height classification and downsampling settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -242,7 +243,8 @@ impl CloudBuilder {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use vlnav_subgoal::camera::{Intrinsics, Mount, encode_depth_mm};
+    use vlnav_geometry::camera::{Intrinsics, Mount};
+    use vlnav_geometry::depth::encode_depth_mm;
 
     #[test]
     fn heights_split_floor_penalty_blocking_and_overhead() {

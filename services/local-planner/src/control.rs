@@ -36,7 +36,7 @@
 //!   restarts, so the mission executor can recover instead of hanging.
 
 use nalgebra::Vector2;
-use vlnav_subgoal::geometry::{GoalSpec, Pose2, wrap_angle};
+use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
 
 use crate::cloud::{Cell, ObstacleCloud};
 use crate::planner::{Planner, Scratch, Selection};
@@ -200,7 +200,7 @@ impl RobotState {
             if input.stamp - m.stamp > p.memory_s {
                 continue;
             }
-            let b = input.pose.odom_to_base(&m.at);
+            let b = input.pose.inverse_transform(&m.at);
             if b.norm() > p.memory_range_m || input.view.sees(&b, p.memory_near_m) {
                 continue;
             }
@@ -208,7 +208,7 @@ impl RobotState {
             kept.push(m);
         }
         for c in &cloud.cells {
-            let at = input.pose.base_to_odom_2d(&Vector2::new(c.x as f64, c.y as f64));
+            let at = input.pose.transform(&Vector2::new(c.x as f64, c.y as f64));
             kept.push(Remembered { at, cell: *c, stamp: input.stamp });
         }
         self.memory = kept;
@@ -244,7 +244,7 @@ impl RobotState {
         }
         self.cloud = self.merge_memory(input.cloud, &input, p);
         let goal = input.goal;
-        let goal_base = input.pose.odom_to_base(&goal.pose.position());
+        let goal_base = input.pose.inverse_transform(&goal.pose.position());
         let distance = goal_base.norm();
         let bearing = if distance > 1e-9 { goal_base.y.atan2(goal_base.x) } else { 0.0 };
         let mut out = StepOutput {
@@ -294,7 +294,7 @@ impl RobotState {
         let course = self
             .last_path_odom
             .iter()
-            .map(|q| input.pose.odom_to_base(q))
+            .map(|q| input.pose.inverse_transform(q))
             .find(|q| q.norm() >= p.look_ahead_m && q.x > 0.0)
             .map_or(0.0, |q| q.y.atan2(q.x));
         let plan = planner.plan(&self.cloud, goal_base, speed / p.max_speed, course, &mut self.scratch);
@@ -321,7 +321,7 @@ impl RobotState {
             (self.last_speed - p.max_accel * dt).max(0.0).min(target)
         };
         out.linear = v;
-        self.last_path_odom = sel.points.iter().step_by(5).map(|q| input.pose.base_to_odom_2d(q)).collect();
+        self.last_path_odom = sel.points.iter().step_by(5).map(|q| input.pose.transform(q)).collect();
         out.selection = Some(sel.clone());
         self.last_selection = Some(sel);
         out.status = StepStatus::Moving;

@@ -2,11 +2,12 @@
 //! proto → domain, call the actor, convert back.
 
 use tonic::{Request, Response, Status};
+use vlnav_geometry::convert::{
+    DepthDefaults, InvalidField, camera_from_proto, depth_from_proto, goal_from_proto, pose_from_proto,
+};
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::local_planner_service_server::LocalPlannerService;
 use vlnav_runtime::actor::{ActorGone, Mailbox};
-use vlnav_subgoal::geometry::{GoalSpec, Pose2};
-use vlnav_subgoal::grpc::{DepthDefaults, InvalidField, camera_from_proto, depth_from_proto, pose_from_proto};
 
 use crate::actor::{Msg, StepReply, StepRequest};
 use crate::control::StepStatus;
@@ -14,53 +15,23 @@ use crate::control::StepStatus;
 /// Every way a local-planner request can fail.
 #[derive(Debug, thiserror::Error)]
 pub enum LocalPlannerError {
-    #[error("invalid {field}: {reason}")]
-    InvalidArgument { field: String, reason: String },
+    #[error(transparent)]
+    InvalidArgument(#[from] InvalidField),
     #[error(transparent)]
     ActorGone(#[from] ActorGone),
-}
-
-impl From<InvalidField> for LocalPlannerError {
-    fn from(e: InvalidField) -> Self {
-        Self::InvalidArgument { field: e.field, reason: e.reason }
-    }
 }
 
 impl From<LocalPlannerError> for Status {
     fn from(e: LocalPlannerError) -> Self {
         match e {
-            LocalPlannerError::InvalidArgument { .. } => Status::invalid_argument(e.to_string()),
+            LocalPlannerError::InvalidArgument(e) => Status::invalid_argument(e.to_string()),
             LocalPlannerError::ActorGone(g) => g.into(),
         }
     }
 }
 
 fn invalid(field: &str, reason: impl Into<String>) -> LocalPlannerError {
-    LocalPlannerError::InvalidArgument { field: field.to_string(), reason: reason.into() }
-}
-
-fn goal_from_proto(g: Option<&pb::Goal>) -> Result<GoalSpec, LocalPlannerError> {
-    let g = g.ok_or_else(|| invalid("goal", "is required (odom pose and tolerances, from the subgoal service)"))?;
-    let pose: Pose2 = pose_from_proto(g.pose.as_ref(), "goal.pose")?;
-    if g.rotation_only {
-        if !(g.yaw_tolerance.is_finite() && g.yaw_tolerance > 0.0) {
-            return Err(invalid(
-                "goal.yaw_tolerance",
-                format!("must be a positive angle in radians for a rotation, got {}", g.yaw_tolerance),
-            ));
-        }
-    } else if !(g.position_tolerance.is_finite() && g.position_tolerance > 0.0) {
-        return Err(invalid(
-            "goal.position_tolerance",
-            format!("must be a positive distance in metres, got {}", g.position_tolerance),
-        ));
-    }
-    Ok(GoalSpec {
-        pose,
-        position_tolerance: if g.position_tolerance.is_finite() { g.position_tolerance.max(0.0) } else { 0.0 },
-        yaw_tolerance: if g.yaw_tolerance.is_finite() { g.yaw_tolerance.max(0.0) } else { 0.0 },
-        rotation_only: g.rotation_only,
-    })
+    InvalidField::new(field, reason).into()
 }
 
 /// Validates a request into the actor's step (no copy of the depth bytes).
@@ -83,7 +54,7 @@ pub fn step_request(r: pb::PlanStepRequest, depth_defaults: DepthDefaults) -> Re
     let camera = camera_from_proto(frame.camera.as_ref(), "frame.camera", depth_defaults)?;
     depth_from_proto(frame.depth.as_ref(), &camera, "frame.depth")?;
     let pose = pose_from_proto(frame.odom.as_ref(), "frame.odom")?;
-    let goal = goal_from_proto(r.goal.as_ref())?;
+    let goal = goal_from_proto(r.goal.as_ref(), "goal")?;
     if !(r.max_speed.is_finite() && r.max_speed >= 0.0) {
         return Err(invalid(
             "max_speed",

@@ -19,8 +19,8 @@ pub mod planner;
 
 use std::sync::Arc;
 
+use vlnav_geometry::convert::DepthDefaults;
 use vlnav_proto::v1::local_planner_service_server::LocalPlannerServiceServer;
-use vlnav_subgoal::grpc::DepthDefaults;
 
 use crate::cloud::CloudParams;
 use crate::control::FollowParams;

@@ -31,7 +31,7 @@ use nalgebra::Vector2;
 use crate::cloud::ObstacleCloud;
 use crate::lookup::{Grid, LookupTable, PathSet};
 use crate::paths::{PATH_COUNT, PATH_RADIUS, Path, PathLibrary, SAMPLES};
-use vlnav_subgoal::geometry::wrap_angle;
+use vlnav_geometry::wrap_angle;
 
 /// Weights of the cost J (the paper publishes none; these were tuned on the
 /// planner scenarios in the tests: an obstacle ahead, a no-go floor zone, a

@@ -5,10 +5,10 @@
 use std::f64::consts::PI;
 use std::sync::OnceLock;
 
+use vlnav_geometry::{GoalSpec, Pose2};
 use vlnav_local_planner::cloud::{CloudBuilder, CloudParams};
 use vlnav_local_planner::control::{FollowParams, RobotState, StepInput, StepOutput, StepStatus, View};
 use vlnav_local_planner::planner::{Planner, PlannerParams};
-use vlnav_subgoal::geometry::{GoalSpec, Pose2};
 
 const HALF_WIDTH: f64 = 0.335;
 const HALF_FOV: f64 = 43.0 * PI / 180.0;
@@ -59,7 +59,7 @@ impl World {
     /// What the camera sees from `pose`, in base_link.
     fn sense(&self, pose: &Pose2, builder: &mut CloudBuilder) -> vlnav_local_planner::cloud::ObstacleCloud {
         let to_base = |p: &[f64; 3]| {
-            let b = pose.odom_to_base(&nalgebra::Vector2::new(p[0], p[1]));
+            let b = pose.inverse_transform(&nalgebra::Vector2::new(p[0], p[1]));
             [b.x, b.y, p[2]]
         };
         let visible = |b: &[f64; 3]| b[0] > 0.3 && b[1].atan2(b[0]).abs() < HALF_FOV && b[0].hypot(b[1]) < 6.0;

@@ -3,11 +3,13 @@
 
 use nalgebra::Vector3;
 use tonic::Code;
+use vlnav_geometry::camera::{Camera, Intrinsics, Mount};
+use vlnav_geometry::convert::camera_to_proto;
+use vlnav_geometry::depth::encode_depth_mm;
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::local_planner_service_client::LocalPlannerServiceClient;
 use vlnav_runtime::ServerConfig;
 use vlnav_runtime::testing::{self, Connected};
-use vlnav_subgoal::camera::{Camera, Intrinsics, Mount, encode_depth_mm};
 
 const W: u32 = 640;
 const H: u32 = 480;
@@ -69,29 +71,11 @@ fn render(boxes: &Boxes) -> Vec<u8> {
 }
 
 fn frame(boxes: &Boxes, odom: pb::Pose2D, stamp: f64) -> pb::RgbdFrame {
-    let cam = camera();
     pb::RgbdFrame {
         robot_id: "husky-1".into(),
         seq: 0,
         stamp,
-        camera: Some(pb::CameraInfo {
-            width: W,
-            height: H,
-            intrinsics: Some(pb::CameraIntrinsics {
-                fx: cam.intrinsics.fx,
-                fy: cam.intrinsics.fy,
-                cx: cam.intrinsics.cx,
-                cy: cam.intrinsics.cy,
-            }),
-            mount: Some(pb::CameraMount {
-                translation: Some(pb::Point3 { x: 0.3, y: 0.0, z: 0.5 }),
-                roll: 0.0,
-                pitch: 0.0,
-                yaw: 0.0,
-            }),
-            depth_min_m: 0.3,
-            depth_max_m: 10.0,
-        }),
+        camera: Some(camera_to_proto(&camera())),
         rgb: None,
         depth: Some(pb::DepthImage { width: W, height: H, data_mm: render(boxes) }),
         odom: Some(pb::Pose2D { x: odom.x, y: odom.y, theta: odom.theta }),

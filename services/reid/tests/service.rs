@@ -70,7 +70,7 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
     let cases = [
         (enroll("", vec![rgb8(4, 4)]), "name"),
         (enroll("ana", vec![]), "images"),
-        (enroll("ana", vec![Image { data: vec![0; 4 * 4 * 4], ..rgb8(4, 4) }]), "4 channels"),
+        (enroll("ana", vec![Image { data: vec![0; 4 * 4 * 4], ..rgb8(4, 4) }]), "4-channel"),
         (enroll("ana", vec![Image { data: vec![0; 10], ..rgb8(4, 4) }]), "images[0].data"),
         (
             enroll(
@@ -82,7 +82,7 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
                     data: vec![0xFF, 0xD8, 0xFF, 0xE0, 0, 16],
                 }],
             ),
-            "Jpeg",
+            "cannot decode the JPEG",
         ),
         (enroll("ana", vec![Image { encoding: ImageEncoding::Unspecified as i32, ..rgb8(4, 4) }]), "encoding"),
     ];
@@ -97,7 +97,7 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
     let img = Image { width: 6, height: 3, encoding: ImageEncoding::Png as i32, data: png.into_inner() };
     let err = s.client.enroll_person(enroll("ana", vec![img])).await.unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
-    assert!(err.message().contains("declared 6×3 but the image is 5×3"), "{}", err.message());
+    assert!(err.message().contains("decodes to 5×3, but the request says 6×3"), "{}", err.message());
 
     s.client.enroll_person(enroll("ana", vec![rgb8(4, 4)])).await.unwrap();
     let identify =

@@ -3,13 +3,12 @@
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::Vector3;
+use vlnav_geometry::camera::{Camera, Intrinsics, Mount, Projector};
+use vlnav_geometry::convert::camera_to_proto;
 use vlnav_proto::v1::segmenter_service_client::SegmenterServiceClient;
-use vlnav_proto::v1::{
-    CameraInfo, CameraIntrinsics, CameraMount, DepthImage, Image, ImageEncoding, Point3, RgbdFrame, SegmentRequest,
-};
+use vlnav_proto::v1::{DepthImage, Image, ImageEncoding, RgbdFrame, SegmentRequest};
 use vlnav_segmenter::colour::default_classes;
 use vlnav_segmenter::segment::{ColourBackend, FrameView, PointSettings, segment};
-use vlnav_subgoal::camera::{Camera, Intrinsics, Mount, Projector};
 
 const W: u32 = 640;
 const H: u32 = 480;
@@ -73,24 +72,7 @@ fn service(c: &mut Criterion) {
         (server, client)
     });
     let frame = RgbdFrame {
-        camera: Some(CameraInfo {
-            width: W,
-            height: H,
-            intrinsics: Some(CameraIntrinsics {
-                fx: cam.intrinsics.fx,
-                fy: cam.intrinsics.fy,
-                cx: cam.intrinsics.cx,
-                cy: cam.intrinsics.cy,
-            }),
-            mount: Some(CameraMount {
-                translation: Some(Point3 { x: 0.3, y: 0.0, z: 0.6 }),
-                roll: 0.0,
-                pitch: 0.35,
-                yaw: 0.0,
-            }),
-            depth_min_m: 0.4,
-            depth_max_m: 12.0,
-        }),
+        camera: Some(camera_to_proto(&cam)),
         rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb }),
         depth: Some(DepthImage { width: W, height: H, data_mm: depth.iter().flat_map(|d| d.to_le_bytes()).collect() }),
         ..Default::default()

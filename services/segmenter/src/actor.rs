@@ -2,8 +2,8 @@
 //! own thread (a 640×480 frame is a few milliseconds of CPU work).
 
 use tokio::sync::{mpsc, oneshot};
+use vlnav_geometry::camera::Camera;
 use vlnav_runtime::actor::Mailbox;
-use vlnav_subgoal::camera::Camera;
 
 use crate::segment::{FrameView, PointSettings, SegmentBackend, SegmentError, Segmentation, SemanticLabels, segment};
 

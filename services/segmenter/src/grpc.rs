@@ -1,25 +1,39 @@
 //! The thin tonic layer: validate the frame, convert proto → domain, ask the
-//! actor, convert back.
+//! actor, convert back. Errors are mapped to gRPC status codes in one place.
 
 use tonic::{Request, Response, Status};
-use vlnav_proto::v1::{
-    self, ImageEncoding, Point3, SegmentRequest, SegmentResponse, segmenter_service_server::SegmenterService,
+use vlnav_geometry::camera::Camera;
+use vlnav_geometry::convert::{
+    DepthDefaults, InvalidField, camera_from_proto, depth_from_proto, encoded_image_from_proto, label_ids_from_proto,
 };
-use vlnav_runtime::actor::Mailbox;
-use vlnav_subgoal::camera::{Camera, Intrinsics, Mount};
+use vlnav_geometry::rgb::decode_off_thread;
+use vlnav_proto::v1::{self, Point3, SegmentRequest, SegmentResponse, segmenter_service_server::SegmenterService};
+use vlnav_runtime::actor::{ActorGone, Mailbox};
 
 use crate::actor::{Msg, SegmentJob};
 use crate::segment::{SegmentError, SemanticLabels};
 
-/// Largest accepted image side, pixels.
-const MAX_SIDE: u32 = 8192;
 /// Largest accepted point stride.
 const MAX_STRIDE: u32 = 1024;
 
-impl From<SegmentError> for Status {
-    fn from(e: SegmentError) -> Self {
+/// Everything that can go wrong in a Segment call, mapped once to a status.
+#[derive(Debug, thiserror::Error)]
+pub enum ServiceError {
+    #[error(transparent)]
+    Invalid(#[from] InvalidField),
+    #[error(transparent)]
+    Segment(#[from] SegmentError),
+    #[error(transparent)]
+    Gone(#[from] ActorGone),
+}
+
+impl From<ServiceError> for Status {
+    fn from(e: ServiceError) -> Self {
         match e {
-            SegmentError::InvalidInput(m) => Status::invalid_argument(m),
+            ServiceError::Invalid(_) | ServiceError::Segment(SegmentError::InvalidInput(_)) => {
+                Status::invalid_argument(e.to_string())
+            }
+            ServiceError::Gone(g) => g.into(),
         }
     }
 }
@@ -35,143 +49,62 @@ impl SegmenterGrpc {
     }
 }
 
-fn invalid(msg: impl Into<String>) -> Status {
-    Status::invalid_argument(msg.into())
+/// The colour image as RGB8 of exactly the camera's size (decoded off the async threads).
+async fn rgb(frame: &v1::RgbdFrame, camera: &Camera) -> Result<Vec<u8>, ServiceError> {
+    let field = "frame.rgb";
+    let img = frame.rgb.as_ref().ok_or_else(|| InvalidField::new(field, "is required (RGB8, PNG or JPEG)"))?;
+    let encoded = encoded_image_from_proto(img).map_err(|e| e.in_field(field))?;
+    let decoded = decode_off_thread(encoded).await.map_err(|e| e.in_field(field))?;
+    let (w, h) = (camera.width, camera.height);
+    if decoded.dimensions() != (w, h) {
+        let (iw, ih) = decoded.dimensions();
+        return Err(InvalidField::new(field, format!("the image is {iw}×{ih} but frame.camera says {w}×{h}")).into());
+    }
+    Ok(decoded.into_raw())
 }
 
-fn camera(frame: &v1::RgbdFrame) -> Result<Camera, Status> {
-    let c = frame.camera.as_ref().ok_or_else(|| invalid("frame.camera: required (intrinsics and mount)"))?;
-    if c.width == 0 || c.height == 0 || c.width > MAX_SIDE || c.height > MAX_SIDE {
-        return Err(invalid(format!(
-            "frame.camera: width and height must be 1–{MAX_SIDE}, got {}×{}",
-            c.width, c.height
-        )));
-    }
-    let k = c.intrinsics.as_ref().ok_or_else(|| invalid("frame.camera.intrinsics: required"))?;
-    if !(k.fx.is_finite() && k.fy.is_finite() && k.fx > 0.0 && k.fy > 0.0 && k.cx.is_finite() && k.cy.is_finite()) {
-        return Err(invalid("frame.camera.intrinsics: fx and fy must be positive, cx and cy finite"));
-    }
-    let m = c.mount.unwrap_or_default();
-    let t = m.translation.unwrap_or_default();
-    if ![t.x, t.y, t.z, m.roll, m.pitch, m.yaw].iter().all(|v| v.is_finite()) {
-        return Err(invalid("frame.camera.mount: translation and angles must be finite"));
-    }
-    if !(c.depth_min_m.is_finite() && c.depth_max_m.is_finite()) {
-        return Err(invalid("frame.camera: depth_min_m and depth_max_m must be finite"));
-    }
-    Ok(Camera {
-        width: c.width,
-        height: c.height,
-        intrinsics: Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy },
-        mount: Mount { translation: nalgebra::Vector3::new(t.x, t.y, t.z), roll: m.roll, pitch: m.pitch, yaw: m.yaw },
-        depth_min_m: c.depth_min_m,
-        depth_max_m: c.depth_max_m,
-    })
-}
-
-/// The colour image as RGB8 of exactly the camera's size.
-fn rgb(frame: &v1::RgbdFrame, w: u32, h: u32) -> Result<Vec<u8>, Status> {
-    let img = frame.rgb.as_ref().ok_or_else(|| invalid("frame.rgb: required"))?;
-    let encoding = ImageEncoding::try_from(img.encoding).unwrap_or(ImageEncoding::Unspecified);
-    let (data, iw, ih) = match encoding {
-        ImageEncoding::Rgb8 => {
-            if (img.width, img.height) != (w, h) {
-                return Err(invalid(format!(
-                    "frame.rgb: {}×{} does not match frame.camera's {w}×{h}",
-                    img.width, img.height
-                )));
-            }
-            let want = w as usize * h as usize * 3;
-            if img.data.len() != want {
-                let channels = img.data.len() as f64 / (w as usize * h as usize) as f64;
-                return Err(invalid(format!(
-                    "frame.rgb.data: RGB8 {w}×{h} needs {want} bytes (3 channels), got {} ({channels:.2} bytes per pixel)",
-                    img.data.len()
-                )));
-            }
-            (img.data.clone(), w, h)
-        }
-        ImageEncoding::Png | ImageEncoding::Jpeg => {
-            let format =
-                if encoding == ImageEncoding::Png { image::ImageFormat::Png } else { image::ImageFormat::Jpeg };
-            let d = image::load_from_memory_with_format(&img.data, format)
-                .map_err(|e| invalid(format!("frame.rgb.data: not a readable {format:?} image: {e}")))?
-                .to_rgb8();
-            let (iw, ih) = d.dimensions();
-            (d.into_raw(), iw, ih)
-        }
-        ImageEncoding::Unspecified => return Err(invalid("frame.rgb.encoding: set RGB8, PNG or JPEG")),
-    };
-    if (iw, ih) != (w, h) {
-        return Err(invalid(format!("frame.rgb: the image is {iw}×{ih} but frame.camera says {w}×{h}")));
-    }
-    Ok(data)
-}
-
-fn depth(frame: &v1::RgbdFrame, w: u32, h: u32) -> Result<Vec<u16>, Status> {
-    let d = frame.depth.as_ref().ok_or_else(|| invalid("frame.depth: required (floor zones are checked in 3-D)"))?;
-    if (d.width, d.height) != (w, h) {
-        return Err(invalid(format!(
-            "frame.depth: {}×{} does not match the {w}×{h} colour image (depth must be aligned to colour)",
-            d.width, d.height
-        )));
-    }
-    let want = w as usize * h as usize * 2;
-    if d.data_mm.len() != want {
-        return Err(invalid(format!(
-            "frame.depth.data_mm: {w}×{h} little-endian u16 needs {want} bytes, got {}",
-            d.data_mm.len()
-        )));
-    }
-    Ok(d.data_mm.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect())
-}
-
-fn semantics(frame: &v1::RgbdFrame, w: u32, h: u32) -> Result<Option<SemanticLabels>, Status> {
+fn semantics(frame: &v1::RgbdFrame, camera: &Camera) -> Result<Option<SemanticLabels>, InvalidField> {
     let Some(l) = frame.labels.as_ref().filter(|l| !l.instance_ids.is_empty()) else { return Ok(None) };
-    if (l.width, l.height) != (w, h) {
-        return Err(invalid(format!("frame.labels: {}×{} does not match the frame's {w}×{h}", l.width, l.height)));
-    }
-    if l.instance_ids.len() != w as usize * h as usize * 2 {
-        return Err(invalid(format!(
-            "frame.labels.instance_ids: {w}×{h} u16 ids need {} bytes, got {}",
-            w as usize * h as usize * 2,
-            l.instance_ids.len()
-        )));
-    }
     Ok(Some(SemanticLabels {
-        ids: l.instance_ids.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect(),
+        ids: label_ids_from_proto(l, camera.width, camera.height, "frame.labels")?,
         semantic: l.instances.iter().map(|i| (i.instance_id, i.semantic.clone())).collect(),
     }))
+}
+
+impl SegmenterGrpc {
+    async fn segment_inner(&self, req: SegmentRequest) -> Result<SegmentResponse, ServiceError> {
+        let frame = req.frame.as_ref().ok_or_else(|| InvalidField::new("frame", "is required"))?;
+        // Depth bounds left at 0 stay unset: the floor check then takes every return.
+        let camera = camera_from_proto(frame.camera.as_ref(), "frame.camera", DepthDefaults::UNSET)?;
+        if req.point_stride > MAX_STRIDE {
+            return Err(
+                InvalidField::new("point_stride", format!("at most {MAX_STRIDE}, got {}", req.point_stride)).into()
+            );
+        }
+        let job = SegmentJob {
+            camera,
+            rgb: rgb(frame, &camera).await?,
+            depth_mm: depth_from_proto(frame.depth.as_ref(), &camera, "frame.depth")?.to_mm(),
+            semantics: semantics(frame, &camera)?,
+            classes: if req.classes.is_empty() { None } else { Some(req.classes.clone()) },
+            point_stride: req.point_stride as usize,
+        };
+        let seg = self.actor.call(|reply| Msg::Segment { job, reply }).await??;
+        Ok(SegmentResponse {
+            mask: if req.return_mask { seg.mask } else { Vec::new() },
+            width: camera.width,
+            height: camera.height,
+            classes: seg.classes,
+            virtual_points: seg.points.into_iter().map(|[x, y, z]| Point3 { x, y, z }).collect(),
+            class_pixels: seg.class_pixels,
+            backend: self.backend.to_string(),
+        })
+    }
 }
 
 #[tonic::async_trait]
 impl SegmenterService for SegmenterGrpc {
     async fn segment(&self, req: Request<SegmentRequest>) -> Result<Response<SegmentResponse>, Status> {
-        let req = req.into_inner();
-        let frame = req.frame.as_ref().ok_or_else(|| invalid("frame: required"))?;
-        let camera = camera(frame)?;
-        let (w, h) = (camera.width, camera.height);
-        let job = SegmentJob {
-            camera,
-            rgb: rgb(frame, w, h)?,
-            depth_mm: depth(frame, w, h)?,
-            semantics: semantics(frame, w, h)?,
-            classes: if req.classes.is_empty() { None } else { Some(req.classes.clone()) },
-            point_stride: if req.point_stride > MAX_STRIDE {
-                return Err(invalid(format!("point_stride: at most {MAX_STRIDE}, got {}", req.point_stride)));
-            } else {
-                req.point_stride as usize
-            },
-        };
-        let seg = self.actor.call(|reply| Msg::Segment { job, reply }).await??;
-        Ok(Response::new(SegmentResponse {
-            mask: if req.return_mask { seg.mask } else { Vec::new() },
-            width: w,
-            height: h,
-            classes: seg.classes,
-            virtual_points: seg.points.into_iter().map(|[x, y, z]| Point3 { x, y, z }).collect(),
-            class_pixels: seg.class_pixels,
-            backend: self.backend.to_string(),
-        }))
+        Ok(Response::new(self.segment_inner(req.into_inner()).await?))
     }
 }

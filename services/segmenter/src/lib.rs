@@ -9,7 +9,7 @@
 //! implementation of the same trait.
 //!
 //! Layout: [`colour`], [`segment`] are the pure domain (the pinhole and
-//! mount model is `vlnav_subgoal::camera`, shared with the subgoal estimator
+//! mount model is `vlnav_geometry::camera`, shared with the subgoal estimator
 //! and the local planner); [`actor`] owns the backend; [`grpc`] is the tonic
 //! layer.
 

@@ -6,7 +6,7 @@
 
 use std::collections::HashMap;
 
-use vlnav_subgoal::camera::{Camera, Projector};
+use vlnav_geometry::camera::{Camera, Projector};
 
 use crate::colour::{ColourClass, rgb_to_hsv};
 
@@ -228,7 +228,7 @@ mod tests {
     use super::*;
     use crate::colour::default_classes;
     use nalgebra::Vector3;
-    use vlnav_subgoal::camera::{Intrinsics, Mount};
+    use vlnav_geometry::camera::{Intrinsics, Mount};
 
     /// A camera 1 m above the floor looking straight down (pitch +90°): every
     /// pixel sees the floor at 1 m, image up (−v) is base_link +x.

@@ -4,11 +4,10 @@
 
 use nalgebra::{Rotation3, Vector3};
 use tonic::Code;
+use vlnav_geometry::camera::{Camera, Intrinsics, Mount};
+use vlnav_geometry::convert::camera_to_proto;
 use vlnav_proto::v1::segmenter_service_client::SegmenterServiceClient;
-use vlnav_proto::v1::{
-    CameraInfo, CameraIntrinsics, CameraMount, DepthImage, Image, ImageEncoding, LabelImage, LabelInstance, Point3,
-    RgbdFrame, SegmentRequest,
-};
+use vlnav_proto::v1::{DepthImage, Image, ImageEncoding, LabelImage, LabelInstance, Point3, RgbdFrame, SegmentRequest};
 use vlnav_runtime::ServerConfig;
 use vlnav_runtime::testing::{self, Connected};
 
@@ -89,19 +88,14 @@ fn frame(rgb: Vec<u8>, depth: Vec<u8>) -> RgbdFrame {
         robot_id: "husky-1".into(),
         seq: 1,
         stamp: 12.5,
-        camera: Some(CameraInfo {
+        camera: Some(camera_to_proto(&Camera {
             width: W,
             height: H,
-            intrinsics: Some(CameraIntrinsics { fx: K.0, fy: K.1, cx: K.2, cy: K.3 }),
-            mount: Some(CameraMount {
-                translation: Some(Point3 { x: MOUNT.0[0], y: MOUNT.0[1], z: MOUNT.0[2] }),
-                roll: 0.0,
-                pitch: MOUNT.1,
-                yaw: 0.0,
-            }),
+            intrinsics: Intrinsics { fx: K.0, fy: K.1, cx: K.2, cy: K.3 },
+            mount: Mount { translation: Vector3::from(MOUNT.0), roll: 0.0, pitch: MOUNT.1, yaw: 0.0 },
             depth_min_m: 0.4,
             depth_max_m: 12.0,
-        }),
+        })),
         rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb }),
         depth: Some(DepthImage { width: W, height: H, data_mm: depth }),
         ..Default::default()
@@ -222,13 +216,13 @@ async fn malformed_frames_get_invalid_argument_naming_the_field() {
             }),
             "frame.rgb",
         ),
-        (with(&|f| f.rgb.as_mut().unwrap().data = vec![0; (W * H * 4) as usize]), "3 channels"),
+        (with(&|f| f.rgb.as_mut().unwrap().data = vec![0; (W * H * 4) as usize]), "4-channel"),
         (with(&|f| f.depth.as_mut().unwrap().width = 320), "frame.depth"),
         (with(&|f| f.depth.as_mut().unwrap().data_mm.truncate(1000)), "frame.depth.data_mm"),
         (with(&|f| f.depth = None), "frame.depth"),
         (with(&|f| f.camera.as_mut().unwrap().intrinsics.as_mut().unwrap().fx = 0.0), "intrinsics"),
         (with(&|f| f.camera = None), "frame.camera"),
-        (with(&|f| f.rgb.as_mut().unwrap().encoding = ImageEncoding::Png as i32), "Png"),
+        (with(&|f| f.rgb.as_mut().unwrap().encoding = ImageEncoding::Png as i32), "cannot decode the PNG"),
         (SegmentRequest { frame: None, classes: vec![], return_mask: false, point_stride: 0 }, "frame"),
         (SegmentRequest { point_stride: 100_000, ..with(&|_| {}) }, "point_stride"),
     ];

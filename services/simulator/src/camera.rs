@@ -199,7 +199,7 @@ impl Renderer {
         self.seen.resize(world.entities.len() + 1, false);
 
         let (cam_pose, cz) = cam.pose_in_world(robot);
-        let origin = cam_pose.position();
+        let origin = Vec2::from(cam_pose.position());
         let forward = Vec2::new(1.0, 0.0).rotate(cam_pose.theta);
         let left = Vec2::new(0.0, 1.0).rotate(cam_pose.theta);
 

@@ -1,7 +1,8 @@
-//! Planar geometry for a 2.5-D world: points, poses, simple polygons and
-//! circles, ray crossings and footprint overlap tests.
+//! Planar geometry for a 2.5-D world: points, simple polygons and circles,
+//! ray crossings and footprint overlap tests. Poses are `vlnav_geometry`'s.
 
-use std::f64::consts::PI;
+use nalgebra::Vector2;
+pub use vlnav_geometry::{Pose2, wrap_angle};
 
 /// A point or vector in the plane, metres.
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
@@ -38,49 +39,16 @@ impl Vec2 {
     }
 }
 
-/// A planar pose (x, y, heading), world or odometry frame.
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct Pose2 {
-    pub x: f64,
-    pub y: f64,
-    pub theta: f64,
-}
-
-impl Pose2 {
-    pub const fn new(x: f64, y: f64, theta: f64) -> Self {
-        Self { x, y, theta }
-    }
-    pub fn position(&self) -> Vec2 {
-        Vec2::new(self.x, self.y)
-    }
-    /// Maps a point from this pose's frame into the parent frame.
-    pub fn transform(&self, p: Vec2) -> Vec2 {
-        p.rotate(self.theta).add(self.position())
-    }
-    /// `self ⊕ other`: `other` expressed in this pose's frame, composed.
-    pub fn compose(&self, other: &Pose2) -> Pose2 {
-        let p = self.transform(other.position());
-        Pose2::new(p.x, p.y, wrap_angle(self.theta + other.theta))
-    }
-    /// `self⁻¹ ⊕ other`: `other` expressed in this pose's frame.
-    pub fn relative(&self, other: &Pose2) -> Pose2 {
-        let d = other.position().sub(self.position()).rotate(-self.theta);
-        Pose2::new(d.x, d.y, wrap_angle(other.theta - self.theta))
-    }
-    pub fn distance(&self, other: &Pose2) -> f64 {
-        (self.x - other.x).hypot(self.y - other.y)
+impl From<Vector2<f64>> for Vec2 {
+    fn from(v: Vector2<f64>) -> Self {
+        Vec2::new(v.x, v.y)
     }
 }
 
-/// Wraps an angle to (−π, π].
-pub fn wrap_angle(a: f64) -> f64 {
-    let mut a = a % (2.0 * PI);
-    if a > PI {
-        a -= 2.0 * PI;
-    } else if a <= -PI {
-        a += 2.0 * PI;
+impl From<Vec2> for Vector2<f64> {
+    fn from(v: Vec2) -> Self {
+        Vector2::new(v.x, v.y)
     }
-    a
 }
 
 /// A ground-plane shape: a simple polygon or a circle.
@@ -284,11 +252,12 @@ impl OrientedRect {
 
     pub fn corners(&self) -> [Vec2; 4] {
         let (l, w) = (self.half_length, self.half_width);
-        [Vec2::new(l, w), Vec2::new(-l, w), Vec2::new(-l, -w), Vec2::new(l, -w)].map(|c| self.pose.transform(c))
+        [Vec2::new(l, w), Vec2::new(-l, w), Vec2::new(-l, -w), Vec2::new(l, -w)]
+            .map(|c| self.pose.transform(&c.into()).into())
     }
 
     pub fn contains(&self, p: Vec2) -> bool {
-        let q = p.sub(self.pose.position()).rotate(-self.pose.theta);
+        let q = self.pose.inverse_transform(&p.into());
         q.x.abs() <= self.half_length && q.y.abs() <= self.half_width
     }
 
@@ -296,7 +265,7 @@ impl OrientedRect {
     pub fn overlaps(&self, shape: &Shape) -> bool {
         match shape {
             Shape::Circle { centre, radius } => {
-                let q = centre.sub(self.pose.position()).rotate(-self.pose.theta);
+                let q = self.pose.inverse_transform(&(*centre).into());
                 let dx = (q.x.abs() - self.half_length).max(0.0);
                 let dy = (q.y.abs() - self.half_width).max(0.0);
                 dx.hypot(dy) <= *radius
@@ -412,15 +381,5 @@ mod tests {
         assert!(self_intersection(&bowtie).is_some());
         assert!(self_intersection(&square()).is_none());
         assert!(signed_area2(&square()) > 0.0);
-    }
-
-    #[test]
-    fn poses_compose_and_invert() {
-        let a = Pose2::new(1.0, 2.0, 0.5);
-        let b = Pose2::new(-0.3, 0.7, -1.2);
-        let c = a.compose(&b);
-        let back = a.relative(&c);
-        assert!((back.x - b.x).abs() < 1e-12 && (back.y - b.y).abs() < 1e-12 && (back.theta - b.theta).abs() < 1e-12);
-        assert!((wrap_angle(3.0 * PI) - PI).abs() < 1e-12);
     }
 }

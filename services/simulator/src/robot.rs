@@ -223,7 +223,7 @@ pub fn advance(pose: Pose2, twist: Twist, lateral: f64, dt: f64) -> Pose2 {
     let vx = twist.linear * dt;
     let vy = lateral * dt;
     let d = Vec2::new(fx * vx - fy * vy, fy * vx + fx * vy);
-    let w = pose.transform(d);
+    let w = pose.transform(&d.into());
     Pose2::new(w.x, w.y, wrap_angle(pose.theta + dth))
 }
 

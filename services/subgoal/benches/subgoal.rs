@@ -6,9 +6,11 @@
 use criterion::{Criterion, criterion_group, criterion_main};
 use nalgebra::{Vector3, vector};
 use std::hint::black_box;
-use vlnav_subgoal::camera::{Camera, DepthView, Intrinsics, Mount, encode_depth_mm};
+use vlnav_geometry::Pose2;
+use vlnav_geometry::camera::{Camera, Intrinsics, Mount};
+use vlnav_geometry::depth::{DepthView, encode_depth_mm};
 use vlnav_subgoal::fusion::{FixedParams, FixedTarget, MovingParams, MovingTarget};
-use vlnav_subgoal::geometry::{BoxDepthParams, MoveParams, PixelBox, Pose2, box_depth, move_goal, target_in_odom};
+use vlnav_subgoal::geometry::{BoxDepthParams, MoveParams, PixelBox, box_depth, move_goal, target_in_odom};
 
 fn bench(c: &mut Criterion) {
     let cam = Camera {

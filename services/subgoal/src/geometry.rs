@@ -9,68 +9,11 @@
 //!   lies `d_s` short of the target along the bearing from the robot.
 
 use nalgebra::{Vector2, Vector3};
-
-use crate::camera::{Camera, DepthView};
-
-/// Wraps an angle to (−π, π].
-pub fn wrap_angle(a: f64) -> f64 {
-    let two_pi = std::f64::consts::TAU;
-    let mut w = a.rem_euclid(two_pi);
-    if w > std::f64::consts::PI {
-        w -= two_pi;
-    }
-    w
-}
-
-/// Planar pose of `base_link` in `odom`.
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct Pose2 {
-    pub x: f64,
-    pub y: f64,
-    pub theta: f64,
-}
-
-impl Pose2 {
-    pub fn new(x: f64, y: f64, theta: f64) -> Self {
-        Self { x, y, theta }
-    }
-
-    pub fn position(&self) -> Vector2<f64> {
-        Vector2::new(self.x, self.y)
-    }
-
-    /// A `base_link` point expressed in `odom` (z unchanged).
-    pub fn base_to_odom(&self, p: &Vector3<f64>) -> Vector3<f64> {
-        let (s, c) = self.theta.sin_cos();
-        Vector3::new(self.x + c * p.x - s * p.y, self.y + s * p.x + c * p.y, p.z)
-    }
-
-    /// A planar `base_link` point expressed in `odom`.
-    pub fn base_to_odom_2d(&self, p: &Vector2<f64>) -> Vector2<f64> {
-        let (s, c) = self.theta.sin_cos();
-        Vector2::new(self.x + c * p.x - s * p.y, self.y + s * p.x + c * p.y)
-    }
-
-    /// An `odom` point expressed in `base_link` (planar).
-    pub fn odom_to_base(&self, p: &Vector2<f64>) -> Vector2<f64> {
-        let (s, c) = self.theta.sin_cos();
-        let d = p - self.position();
-        Vector2::new(c * d.x + s * d.y, -s * d.x + c * d.y)
-    }
-
-    pub fn is_finite(&self) -> bool {
-        self.x.is_finite() && self.y.is_finite() && self.theta.is_finite()
-    }
-}
-
-/// A goal in `odom` with its acceptance tolerances.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GoalSpec {
-    pub pose: Pose2,
-    pub position_tolerance: f64,
-    pub yaw_tolerance: f64,
-    pub rotation_only: bool,
-}
+use vlnav_geometry::camera::Camera;
+use vlnav_geometry::depth::DepthView;
+// `GoalSpec` and `Pose2` are re-exported for `gateway/src/executor.rs` (and
+// `wrap_angle` as its `wrap`) until it imports `vlnav_geometry` directly.
+pub use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
 
 /// Tunables of the egocentric MOVE (the authors' values by default).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -215,7 +158,7 @@ pub fn box_depth(depth: &DepthView<'_>, b: &PixelBox, cam: &Camera, p: &BoxDepth
 /// The target seen through the box centre at `depth_m`, in `odom`.
 pub fn target_in_odom(cam: &Camera, b: &PixelBox, depth_m: f64, robot: &Pose2) -> Vector3<f64> {
     let (uc, vc) = b.centre();
-    robot.base_to_odom(&cam.pixel_to_base(uc, vc, depth_m))
+    robot.transform_3d(&cam.pixel_to_base(uc, vc, depth_m))
 }
 
 /// The goal `d_s` short of `target` along the bearing from the robot, facing
@@ -235,22 +178,14 @@ pub fn approach_goal(robot: &Pose2, target: &Vector2<f64>, d_s: f64) -> Pose2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::camera::{Intrinsics, Mount, encode_depth_mm};
     use std::f64::consts::{FRAC_PI_2, PI};
+    use vlnav_geometry::camera::{Intrinsics, Mount};
+    use vlnav_geometry::depth::encode_depth_mm;
 
     const EPS: f64 = 1e-9;
 
     fn near(a: f64, b: f64) {
         assert!((a - b).abs() < EPS, "{a} != {b}");
-    }
-
-    #[test]
-    fn wrap_angle_lands_in_minus_pi_pi() {
-        near(wrap_angle(3.0 * PI), PI);
-        near(wrap_angle(-PI), PI);
-        near(wrap_angle(-1.5 * PI), FRAC_PI_2);
-        near(wrap_angle(0.3), 0.3);
-        near(wrap_angle(-0.3), -0.3);
     }
 
     #[test]

@@ -1,164 +1,44 @@
 //! The thin tonic layer of `vlnav.v1.SubgoalService`: validate, convert proto
 //! → domain, compute the box depth (pure, outside the actor), let the actor
-//! fuse, convert back. Also the frame/camera validation the local planner
-//! shares ([`camera_from_proto`], [`pose_from_proto`]).
+//! fuse, convert back. The frame, camera and pose conversions are
+//! `vlnav_geometry::convert`'s.
 
 use nalgebra::Vector3;
 use tonic::{Request, Response, Status};
+use vlnav_geometry::camera::Camera;
+use vlnav_geometry::convert::{InvalidField, depth_from_proto, finite, goal_to_proto, pose_from_proto};
+// Re-exported for `gateway/src/executor.rs` until it imports `vlnav_geometry` directly.
+pub use vlnav_geometry::convert::{DepthDefaults, camera_from_proto};
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::subgoal_service_server::SubgoalService;
 use vlnav_runtime::actor::{ActorGone, Mailbox};
 
 use crate::actor::Msg;
-use crate::camera::{Camera, DepthSizeError, DepthView, Intrinsics, Mount};
-use crate::geometry::{BoxDepthParams, GoalSpec, MoveParams, PixelBox, Pose2, box_depth, move_goal, target_in_odom};
+use crate::geometry::{BoxDepthParams, MoveParams, PixelBox, box_depth, move_goal, target_in_odom};
 use crate::tracks::{EstimateStatus, Observation, TargetEstimate};
 
 /// Every way a subgoal request can fail.
 #[derive(Debug, thiserror::Error)]
 pub enum SubgoalError {
-    #[error("invalid {field}: {reason}")]
-    InvalidArgument { field: String, reason: String },
+    #[error(transparent)]
+    InvalidArgument(#[from] InvalidField),
     #[error(transparent)]
     ActorGone(#[from] ActorGone),
 }
 
 impl SubgoalError {
     pub fn invalid(field: impl Into<String>, reason: impl Into<String>) -> Self {
-        Self::InvalidArgument { field: field.into(), reason: reason.into() }
+        Self::InvalidArgument(InvalidField::new(field, reason))
     }
 }
 
 impl From<SubgoalError> for Status {
     fn from(e: SubgoalError) -> Self {
         match e {
-            SubgoalError::InvalidArgument { .. } => Status::invalid_argument(e.to_string()),
+            SubgoalError::InvalidArgument(e) => Status::invalid_argument(e.to_string()),
             SubgoalError::ActorGone(g) => g.into(),
         }
     }
-}
-
-/// A malformed field: which one and what was expected.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("invalid {field}: {reason}")]
-pub struct InvalidField {
-    pub field: String,
-    pub reason: String,
-}
-
-impl InvalidField {
-    pub fn new(field: impl Into<String>, reason: impl Into<String>) -> Self {
-        Self { field: field.into(), reason: reason.into() }
-    }
-}
-
-impl From<InvalidField> for SubgoalError {
-    fn from(e: InvalidField) -> Self {
-        SubgoalError::InvalidArgument { field: e.field, reason: e.reason }
-    }
-}
-
-fn finite(field: &str, v: f64) -> Result<f64, InvalidField> {
-    if v.is_finite() { Ok(v) } else { Err(InvalidField::new(field, format!("must be a finite number, got {v}"))) }
-}
-
-/// A required planar pose; every component must be finite.
-pub fn pose_from_proto(p: Option<&pb::Pose2D>, field: &str) -> Result<Pose2, InvalidField> {
-    let p = p.ok_or_else(|| InvalidField::new(field, "is required (x, y in metres, theta in radians)"))?;
-    Ok(Pose2::new(
-        finite(&format!("{field}.x"), p.x)?,
-        finite(&format!("{field}.y"), p.y)?,
-        finite(&format!("{field}.theta"), p.theta)?,
-    ))
-}
-
-/// Depth bounds used when the frame's `CameraInfo` leaves them at 0.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DepthDefaults {
-    pub min_m: f64,
-    pub max_m: f64,
-}
-
-/// `frame.camera` → [`Camera`]: positive size and focal lengths, finite
-/// numbers everywhere; a missing mount is a level camera at the origin.
-pub fn camera_from_proto(
-    info: Option<&pb::CameraInfo>,
-    field: &str,
-    defaults: DepthDefaults,
-) -> Result<Camera, InvalidField> {
-    let info = info.ok_or_else(|| InvalidField::new(field, "is required (size, intrinsics, mount, depth range)"))?;
-    if info.width == 0 || info.height == 0 {
-        return Err(InvalidField::new(
-            format!("{field}.width/height"),
-            format!("must be positive, got {}x{}", info.width, info.height),
-        ));
-    }
-    let k = info
-        .intrinsics
-        .as_ref()
-        .ok_or_else(|| InvalidField::new(format!("{field}.intrinsics"), "is required (fx, fy, cx, cy in pixels)"))?;
-    for (name, v) in [("fx", k.fx), ("fy", k.fy)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(InvalidField::new(
-                format!("{field}.intrinsics.{name}"),
-                format!("must be a positive focal length in pixels, got {v}"),
-            ));
-        }
-    }
-    let cx = finite(&format!("{field}.intrinsics.cx"), k.cx)?;
-    let cy = finite(&format!("{field}.intrinsics.cy"), k.cy)?;
-    let mount = match &info.mount {
-        None => Mount::default(),
-        Some(m) => {
-            let t = m.translation.clone().unwrap_or_default();
-            let f = |n: &str, v: f64| finite(&format!("{field}.mount.{n}"), v);
-            Mount {
-                translation: Vector3::new(f("translation.x", t.x)?, f("translation.y", t.y)?, f("translation.z", t.z)?),
-                roll: f("roll", m.roll)?,
-                pitch: f("pitch", m.pitch)?,
-                yaw: f("yaw", m.yaw)?,
-            }
-        }
-    };
-    let min = finite(&format!("{field}.depth_min_m"), info.depth_min_m)?;
-    let max = finite(&format!("{field}.depth_max_m"), info.depth_max_m)?;
-    let min = if min > 0.0 { min } else { defaults.min_m };
-    let max = if max > 0.0 { max } else { defaults.max_m };
-    if max <= min {
-        return Err(InvalidField::new(
-            format!("{field}.depth_max_m"),
-            format!("must exceed depth_min_m ({min} m), got {max} m"),
-        ));
-    }
-    Ok(Camera {
-        width: info.width,
-        height: info.height,
-        intrinsics: Intrinsics { fx: k.fx, fy: k.fy, cx, cy },
-        mount,
-        depth_min_m: min,
-        depth_max_m: max,
-    })
-}
-
-/// The frame's depth image, checked against the camera size.
-pub fn depth_from_proto<'a>(
-    depth: Option<&'a pb::DepthImage>,
-    cam: &Camera,
-    field: &str,
-) -> Result<DepthView<'a>, InvalidField> {
-    let d =
-        depth.ok_or_else(|| InvalidField::new(field, "is required (little-endian u16 millimetres, width × height)"))?;
-    if d.width != cam.width || d.height != cam.height {
-        return Err(InvalidField::new(
-            format!("{field}.width/height"),
-            format!(
-                "must match the camera's {}x{} (depth aligned to colour), got {}x{}",
-                cam.width, cam.height, d.width, d.height
-            ),
-        ));
-    }
-    DepthView::new(d.width, d.height, &d.data_mm)
-        .map_err(|e: DepthSizeError| InvalidField::new(format!("{field}.data_mm"), e.to_string()))
 }
 
 fn box_from_proto(b: Option<&pb::BoundingBox>, cam: &Camera) -> Result<PixelBox, InvalidField> {
@@ -195,15 +75,6 @@ fn stop_distance(d_s: f64) -> Result<f64, InvalidField> {
         Ok(d_s)
     } else {
         Err(InvalidField::new("d_s", format!("must be a finite distance ≥ 0 in metres (0: default), got {d_s}")))
-    }
-}
-
-pub fn goal_to_proto(g: &GoalSpec) -> pb::Goal {
-    pb::Goal {
-        pose: Some(pb::Pose2D { x: g.pose.x, y: g.pose.y, theta: g.pose.theta }),
-        position_tolerance: g.position_tolerance,
-        yaw_tolerance: g.yaw_tolerance,
-        rotation_only: g.rotation_only,
     }
 }
 

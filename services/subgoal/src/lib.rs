@@ -6,21 +6,26 @@
 //! - [`fusion`]: robust fusion of a fixed target's scattered estimates and a
 //!   constant-velocity Kalman filter for a moving one (FOLLOW);
 //! - [`tracks`]: per-`track_key` state; [`actor`] owns it;
-//! - [`camera`]: pinhole and mounting geometry, shared with the local planner;
 //! - [`grpc`]: validation and proto conversion.
+//!
+//! The camera model, poses and the frame conversions are `vlnav_geometry`'s.
 
 pub mod actor;
-pub mod camera;
+/// Re-exported for `gateway/src/executor.rs` until it imports `vlnav_geometry::camera` directly.
+pub mod camera {
+    pub use vlnav_geometry::camera::*;
+}
 pub mod fusion;
 pub mod geometry;
 pub mod grpc;
 pub mod tracks;
 
+use vlnav_geometry::convert::DepthDefaults;
 use vlnav_proto::v1::subgoal_service_server::SubgoalServiceServer;
 
 use crate::fusion::{FixedParams, MovingParams};
 use crate::geometry::{BoxDepthParams, MoveParams};
-use crate::grpc::{DepthDefaults, Subgoal};
+use crate::grpc::Subgoal;
 use crate::tracks::TrackParams;
 
 pub const DEFAULT_PORT: u16 = vlnav_runtime::ports::SUBGOAL;

@@ -5,9 +5,10 @@
 use std::collections::HashMap;
 
 use nalgebra::{Vector2, Vector3};
+use vlnav_geometry::{GoalSpec, Pose2};
 
 use crate::fusion::{FixedParams, FixedTarget, Fused, MovingParams, MovingTarget};
-use crate::geometry::{GoalSpec, NoDepth, Pose2, approach_goal};
+use crate::geometry::{NoDepth, approach_goal};
 
 /// Tunables of the visual-target goals and their fusion.
 #[derive(Clone, Copy, Debug, PartialEq)]

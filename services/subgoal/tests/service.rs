@@ -2,12 +2,15 @@
 
 use std::f64::consts::FRAC_PI_2;
 
+use nalgebra::Vector3;
 use tonic::Code;
+use vlnav_geometry::camera::{Camera, Intrinsics, Mount};
+use vlnav_geometry::convert::camera_to_proto;
+use vlnav_geometry::depth::encode_depth_mm;
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::subgoal_service_client::SubgoalServiceClient;
 use vlnav_runtime::ServerConfig;
 use vlnav_runtime::testing::{self, Connected};
-use vlnav_subgoal::camera::encode_depth_mm;
 
 const W: u32 = 640;
 const H: u32 = 480;
@@ -39,19 +42,14 @@ fn frame(object: (u32, u32, u32, u32), object_m: f64, odom: pb::Pose2D, stamp: f
         robot_id: "husky-1".into(),
         seq: 1,
         stamp,
-        camera: Some(pb::CameraInfo {
+        camera: Some(camera_to_proto(&Camera {
             width: W,
             height: H,
-            intrinsics: Some(pb::CameraIntrinsics { fx: FX, fy: FX, cx: CX, cy: CY }),
-            mount: Some(pb::CameraMount {
-                translation: Some(pb::Point3 { x: 0.3, y: 0.0, z: 0.5 }),
-                roll: 0.0,
-                pitch: 0.0,
-                yaw: 0.0,
-            }),
+            intrinsics: Intrinsics { fx: FX, fy: FX, cx: CX, cy: CY },
+            mount: Mount { translation: Vector3::new(0.3, 0.0, 0.5), ..Mount::default() },
             depth_min_m: 0.5,
             depth_max_m: 10.0,
-        }),
+        })),
         rgb: None,
         depth: Some(pb::DepthImage { width: W, height: H, data_mm: encode_depth_mm(&depth) }),
         odom: Some(odom),

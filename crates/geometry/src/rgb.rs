@@ -1,0 +1,202 @@
+//! The one RGB decoder: the contract's image encodings (raw RGB8, PNG, JPEG)
+//! into 8-bit RGB, with the size capped and every refusal a typed
+//! [`ImageError`] (all of them the caller's mistake: `INVALID_ARGUMENT`).
+//!
+//! Decoding a JPEG or PNG takes milliseconds of CPU; async callers use
+//! [`decode_off_thread`] / [`decode_all_off_thread`], which run it on
+//! tokio's blocking pool instead of an async worker thread.
+
+use image::RgbImage;
+
+/// How an image's bytes are encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Encoding {
+    Rgb8,
+    Png,
+    Jpeg,
+}
+
+/// Why an image could not be used. Every variant is the caller's mistake.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ImageError {
+    #[error("width and height are required for RGB8 images (got {width}×{height})")]
+    MissingSize { width: u32, height: u32 },
+    #[error(
+        "RGB8 data has {got} bytes, but {width}×{height}×3 = {expected}{hint}; send row-major 8-bit RGB, 3 bytes per pixel"
+    )]
+    WrongLength { width: u32, height: u32, got: usize, expected: usize, hint: String },
+    #[error("image is {width}×{height}; the largest accepted is {max}×{max}")]
+    TooLarge { width: u32, height: u32, max: u32 },
+    #[error("cannot decode the {format} image ({reason}); is it truncated or not a {format}?")]
+    Decode { format: &'static str, reason: String },
+    #[error("the {format} image decodes to {decoded_w}×{decoded_h}, but the request says {width}×{height}")]
+    SizeMismatch { format: &'static str, width: u32, height: u32, decoded_w: u32, decoded_h: u32 },
+    #[error("the image encoding is unspecified; use RGB8, PNG or JPEG")]
+    Unspecified,
+    #[error("unknown image encoding {0}; use RGB8, PNG or JPEG")]
+    UnknownEncoding(i32),
+}
+
+/// Largest side accepted (a D455 frame is 1280×800 at most; photos are larger).
+pub const MAX_SIDE: u32 = 8192;
+
+/// Decodes an image into 8-bit RGB. PNG and JPEG in grey, grey+alpha, RGB or
+/// RGBA are converted (alpha dropped); a non-zero `width`/`height` must match
+/// the decoded size. No side may exceed [`MAX_SIDE`].
+pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Result<RgbImage, ImageError> {
+    if width > MAX_SIDE || height > MAX_SIDE {
+        return Err(ImageError::TooLarge { width, height, max: MAX_SIDE });
+    }
+    match encoding {
+        Encoding::Rgb8 => {
+            if width == 0 || height == 0 {
+                return Err(ImageError::MissingSize { width, height });
+            }
+            let pixels = width as usize * height as usize;
+            let expected = pixels * 3;
+            if data.len() != expected {
+                let hint = match data.len().checked_div(pixels) {
+                    Some(c) if data.len() % pixels == 0 && c != 3 => {
+                        format!(" ({c} bytes per pixel: that is {c}-channel data, not RGB)")
+                    }
+                    _ => String::new(),
+                };
+                return Err(ImageError::WrongLength { width, height, got: data.len(), expected, hint });
+            }
+            Ok(RgbImage::from_raw(width, height, data.to_vec()).expect("length checked"))
+        }
+        Encoding::Png | Encoding::Jpeg => {
+            let (format, name) = match encoding {
+                Encoding::Png => (image::ImageFormat::Png, "PNG"),
+                _ => (image::ImageFormat::Jpeg, "JPEG"),
+            };
+            // The JPEG decoder fills a cut-off scan with grey instead of failing; a truncated
+            // upload must not be mistaken for a picture, so the end-of-image marker is required.
+            if encoding == Encoding::Jpeg && !jpeg_is_complete(data) {
+                return Err(ImageError::Decode {
+                    format: name,
+                    reason: format!("the data ({} bytes) ends without the end-of-image marker FF D9", data.len()),
+                });
+            }
+            let mut reader = image::ImageReader::with_format(std::io::Cursor::new(data), format);
+            let mut limits = image::Limits::default();
+            limits.max_image_width = Some(MAX_SIDE);
+            limits.max_image_height = Some(MAX_SIDE);
+            reader.limits(limits);
+            let img = reader.decode().map_err(|e| ImageError::Decode { format: name, reason: e.to_string() })?;
+            let (dw, dh) = (img.width(), img.height());
+            if (width != 0 && width != dw) || (height != 0 && height != dh) {
+                return Err(ImageError::SizeMismatch { format: name, width, height, decoded_w: dw, decoded_h: dh });
+            }
+            Ok(img.into_rgb8())
+        }
+    }
+}
+
+/// A JPEG stream ends with the EOI marker (FF D9); zero padding after it is tolerated.
+fn jpeg_is_complete(data: &[u8]) -> bool {
+    let end = data.iter().rposition(|&b| b != 0).map_or(0, |i| i + 1);
+    end >= 4 && data[..2] == [0xFF, 0xD8] && data[end - 2..end] == [0xFF, 0xD9]
+}
+
+/// An image still encoded, owning its bytes so it can move to another thread.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EncodedImage {
+    pub encoding: Encoding,
+    /// Declared size; 0 leaves a PNG's or JPEG's own size unchecked.
+    pub width: u32,
+    pub height: u32,
+    pub data: Vec<u8>,
+}
+
+impl EncodedImage {
+    pub fn decode(&self) -> Result<RgbImage, ImageError> {
+        decode(self.encoding, self.width, self.height, &self.data)
+    }
+}
+
+/// Decodes on tokio's blocking pool, keeping the async worker threads free.
+pub async fn decode_off_thread(image: EncodedImage) -> Result<RgbImage, ImageError> {
+    let mut all = decode_all_off_thread(vec![image]).await.map_err(|(_, e)| e)?;
+    Ok(all.pop().expect("one image in, one out"))
+}
+
+/// Decodes several images in one trip to the blocking pool; the error says
+/// which one (its index) failed first.
+pub async fn decode_all_off_thread(images: Vec<EncodedImage>) -> Result<Vec<RgbImage>, (usize, ImageError)> {
+    tokio::task::spawn_blocking(move || {
+        images.iter().enumerate().map(|(i, im)| im.decode().map_err(|e| (i, e))).collect()
+    })
+    .await
+    .unwrap_or_else(|join| {
+        // The decoder panicked on these bytes (or the runtime is shutting down): still the input's fault.
+        Err((0, ImageError::Decode { format: "image", reason: format!("the decoder failed: {join}") }))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn raw_rgb_is_checked_with_a_helpful_message() {
+        let ok = decode(Encoding::Rgb8, 2, 2, &[7u8; 12]).unwrap();
+        assert_eq!(ok.dimensions(), (2, 2));
+        let rgba = decode(Encoding::Rgb8, 2, 2, &[7u8; 16]).unwrap_err();
+        assert!(rgba.to_string().contains("4-channel"), "{rgba}");
+        let short = decode(Encoding::Rgb8, 2, 2, &[7u8; 11]).unwrap_err();
+        assert!(matches!(short, ImageError::WrongLength { got: 11, expected: 12, .. }));
+        assert_eq!(decode(Encoding::Rgb8, 0, 2, &[]).unwrap_err(), ImageError::MissingSize { width: 0, height: 2 });
+    }
+
+    #[test]
+    fn sides_beyond_the_cap_are_refused_before_any_work() {
+        for enc in [Encoding::Rgb8, Encoding::Png, Encoding::Jpeg] {
+            let e = decode(enc, MAX_SIDE + 1, 1, &[]).unwrap_err();
+            assert_eq!(e, ImageError::TooLarge { width: MAX_SIDE + 1, height: 1, max: MAX_SIDE });
+        }
+    }
+
+    #[test]
+    fn png_round_trip_truncation_and_size_mismatch() {
+        let img = RgbImage::from_fn(5, 3, |x, y| image::Rgb([x as u8 * 40, y as u8 * 80, 9]));
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).unwrap();
+        assert_eq!(decode(Encoding::Png, 5, 3, &png).unwrap(), img);
+        assert_eq!(decode(Encoding::Png, 0, 0, &png).unwrap(), img);
+        let e = decode(Encoding::Png, 5, 3, &png[..png.len() / 2]).unwrap_err();
+        assert!(matches!(e, ImageError::Decode { format: "PNG", .. }), "{e}");
+        let e = decode(Encoding::Png, 6, 3, &png).unwrap_err();
+        assert!(matches!(e, ImageError::SizeMismatch { decoded_w: 5, .. }), "{e}");
+        let e = decode(Encoding::Jpeg, 5, 3, &png).unwrap_err();
+        assert!(matches!(e, ImageError::Decode { format: "JPEG", .. }), "{e}");
+        // A JPEG cut short is refused, a complete one (with zero padding) decodes.
+        let mut jpeg = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut jpeg), image::ImageFormat::Jpeg).unwrap();
+        assert_eq!(decode(Encoding::Jpeg, 5, 3, &jpeg).unwrap().dimensions(), (5, 3));
+        let e = decode(Encoding::Jpeg, 5, 3, &jpeg[..jpeg.len() - 10]).unwrap_err();
+        assert!(e.to_string().contains("end-of-image"), "{e}");
+        jpeg.extend_from_slice(&[0, 0, 0]);
+        assert!(decode(Encoding::Jpeg, 5, 3, &jpeg).is_ok());
+    }
+
+    #[test]
+    fn a_png_larger_than_the_cap_is_refused_by_the_decoder_limits() {
+        // Declared 0×0 (unchecked), but the header says 9000×1.
+        let img = image::GrayImage::new(MAX_SIDE + 808, 1);
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).unwrap();
+        let e = decode(Encoding::Png, 0, 0, &png).unwrap_err();
+        assert!(matches!(e, ImageError::Decode { format: "PNG", .. }), "{e}");
+    }
+
+    #[tokio::test]
+    async fn off_thread_decoding_names_the_failing_image() {
+        let good = EncodedImage { encoding: Encoding::Rgb8, width: 1, height: 1, data: vec![1, 2, 3] };
+        let bad = EncodedImage { data: vec![1, 2], ..good.clone() };
+        assert_eq!(decode_off_thread(good.clone()).await.unwrap().into_raw(), vec![1, 2, 3]);
+        let (i, e) = decode_all_off_thread(vec![good.clone(), bad, good]).await.unwrap_err();
+        assert_eq!(i, 1);
+        assert!(matches!(e, ImageError::WrongLength { got: 2, .. }), "{e}");
+    }
+}
