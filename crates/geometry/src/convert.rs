@@ -146,7 +146,7 @@ pub fn camera_from_proto(
     let mount = match &info.mount {
         None => Mount::default(),
         Some(m) => {
-            let t = m.translation.clone().unwrap_or_default();
+            let t = m.translation.unwrap_or_default();
             let f = |n: &str, v: f64| finite(&format!("{field}.mount.{n}"), v);
             Mount {
                 translation: Vector3::new(f("translation.x", t.x)?, f("translation.y", t.y)?, f("translation.z", t.z)?),
