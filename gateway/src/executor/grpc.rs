@@ -231,12 +231,11 @@ fn detection_to_proto(b: &Detection) -> pb::BoundingBox {
 
 /// What the state machine sees of a sensor frame.
 pub fn frame_from_proto(f: &pb::RgbdFrame, truth: Option<&pb::SimTruth>) -> Frame {
-    let defaults = convert::DepthDefaults { min_m: 0.0, max_m: 1e3 };
     Frame {
         seq: f.seq,
         stamp: f.stamp,
         pose: f.odom.as_ref().map(pose_from_proto).unwrap_or_default(),
-        camera: convert::camera_from_proto(f.camera.as_ref(), "frame.camera", defaults).ok(),
+        camera: convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET).ok(),
         truth: truth.map(|t| Truth {
             pose: t.pose.as_ref().map(pose_from_proto),
             path_length_m: t.path_length_m,

@@ -11,9 +11,7 @@
 use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::camera::Camera;
 use vlnav_geometry::depth::DepthView;
-// `GoalSpec` and `Pose2` are re-exported for `gateway/src/executor.rs` (and
-// `wrap_angle` as its `wrap`) until it imports `vlnav_geometry` directly.
-pub use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
+pub(crate) use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
 
 /// Tunables of the egocentric MOVE (the authors' values by default).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -6,9 +6,8 @@
 use nalgebra::Vector3;
 use tonic::{Request, Response, Status};
 use vlnav_geometry::camera::Camera;
+use vlnav_geometry::convert::{DepthDefaults, camera_from_proto};
 use vlnav_geometry::convert::{InvalidField, depth_from_proto, finite, goal_to_proto, pose_from_proto};
-// Re-exported for `gateway/src/executor.rs` until it imports `vlnav_geometry` directly.
-pub use vlnav_geometry::convert::{DepthDefaults, camera_from_proto};
 use vlnav_proto::v1 as pb;
 use vlnav_proto::v1::subgoal_service_server::SubgoalService;
 use vlnav_runtime::actor::{ActorGone, Mailbox};

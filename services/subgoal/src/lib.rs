@@ -11,10 +11,6 @@
 //! The camera model, poses and the frame conversions are `vlnav_geometry`'s.
 
 pub mod actor;
-/// Re-exported for `gateway/src/executor.rs` until it imports `vlnav_geometry::camera` directly.
-pub mod camera {
-    pub use vlnav_geometry::camera::*;
-}
 pub mod fusion;
 pub mod geometry;
 pub mod grpc;
