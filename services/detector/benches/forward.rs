@@ -69,7 +69,7 @@ fn onnx_runtime(model: &Path, input: &[f32], threads: usize, runs: usize) -> Opt
 
 fn write_npy(path: &Path, values: &[f32]) {
     let mut header = "{'descr': '<f4', 'fortran_order': False, 'shape': (1, 3, 640, 640), }".to_string();
-    while (10 + header.len() + 1) % 64 != 0 {
+    while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
     }
     header.push('\n');

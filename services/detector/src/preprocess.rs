@@ -51,7 +51,7 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
             let expected = pixels * 3;
             if data.len() != expected {
                 let hint = match data.len().checked_div(pixels) {
-                    Some(c) if data.len() % pixels == 0 && c != 3 => {
+                    Some(c) if data.len().is_multiple_of(pixels) && c != 3 => {
                         format!(" ({c} bytes per pixel: that is {c}-channel data, not RGB)")
                     }
                     _ => String::new(),
