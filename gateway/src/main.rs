@@ -45,6 +45,8 @@ enum Cmd {
     Eval(vlnav_eval::EvalArgs),
     /// Per-stage latency of a mission from its distributed trace.
     Profile(vlnav_traces::ProfileArgs),
+    /// Run a detector on photos: one line per box (or JSON), annotated copies with --out.
+    Detect(vlnav_detector::cli::DetectArgs),
 }
 
 /// Starts the built-in OTLP trace receiver (unless an endpoint is configured)
@@ -156,6 +158,11 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Cmd::Profile(args) => {
             println!("{}", vlnav_traces::run_profile(args).await?);
+            Ok(())
+        }
+        Cmd::Detect(args) => {
+            tokio::task::spawn_blocking(move || vlnav_detector::cli::run_detect(&args, &mut std::io::stdout()))
+                .await??;
             Ok(())
         }
     }

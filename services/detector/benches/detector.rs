@@ -2,8 +2,9 @@
 //! over a real loopback gRPC connection (decode, preprocess, forward, decode,
 //! NMS), plus the pure decoding + NMS step.
 //!
-//! NanoDet needs deploy/fetch-models.sh; YOLOv8n runs on generated weights
-//! (the speed of a network does not depend on its weight values).
+//! NanoDet and the trained YOLOv8s need deploy/fetch-models.sh; YOLOv8n runs
+//! on generated weights (the speed of a network does not depend on its weight
+//! values).
 
 use std::path::{Path, PathBuf};
 
@@ -80,6 +81,11 @@ fn service_latency(c: &mut Criterion) {
         (
             "yolov8n_640",
             Options { backend: BackendKind::Yolov8, yolo_weights: Some(yolo), ..Default::default() },
+            camera_frame(),
+        ),
+        (
+            "yolov8s_640_trained",
+            Options { backend: BackendKind::Yolov8, models_dir: models_dir(), ..Default::default() },
             camera_frame(),
         ),
         ("sim_640x480", Options { backend: BackendKind::Sim, ..Default::default() }, label_frame()),

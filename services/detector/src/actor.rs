@@ -6,6 +6,7 @@ use image::RgbImage;
 use tokio::sync::{mpsc, oneshot};
 use vlnav_runtime::actor::Mailbox;
 
+use crate::classes::{ClassMap, Labeled};
 use crate::detection::{DetectFilter, Detection};
 use crate::nanodet::{self, ModelError, NanoDet};
 use crate::sim::{self, LabeledFrame, SimConfig};
@@ -28,6 +29,8 @@ pub struct BackendInfo {
     pub input_height: u32,
     pub device: String,
     pub input: InputKind,
+    /// The model's class names, by its class index.
+    pub classes: Vec<String>,
 }
 
 /// One frame's input.
@@ -53,7 +56,7 @@ pub enum DetectError {
 
 pub enum Backend {
     NanoDet { model: Box<NanoDet>, nms_iou: f32, device: String },
-    YoloV8 { model: Box<YoloV8>, nms_iou: f32, device: String },
+    YoloV8 { model: Box<YoloV8>, classes: ClassMap, nms_iou: f32, device: String },
     Sim(SimConfig),
 }
 
@@ -77,16 +80,17 @@ impl Backend {
             BackendKind::Yolov8 => {
                 let dev = crate::device(opts.device)?;
                 let path = opts.yolo_weights_path();
-                let model = YoloV8::load(&path, opts.yolo_size, 80, &dev).map_err(|e| match e {
+                let model = YoloV8::load(&path, opts.yolo_size, &dev).map_err(|e| match e {
                     ModelError::Missing(p) => anyhow::anyhow!(
-                        "{} is missing: YOLOv8 weights are not distributed with vlnav; convert an ultralytics checkpoint \
-                         to candle naming (see services/detector/README.md) and pass --detector-yolo-weights, or use the default \
-                         NanoDet backend (weights from deploy/fetch-models.sh)",
-                        p.display()
+                        "{} is missing: run deploy/fetch-models.sh for the trained YOLOv8s ({}), or convert your \
+                         ultralytics model to candle naming (see services/detector/README.md) and pass --detector-yolo-weights",
+                        p.display(),
+                        crate::TRAINED_YOLOV8
                     ),
                     other => other.into(),
                 })?;
-                Backend::YoloV8 { model: Box::new(model), nms_iou: opts.nms_iou, device: device_name(&dev) }
+                let classes = yolo_classes(opts, &path, model.num_classes())?;
+                Backend::YoloV8 { model: Box::new(model), classes, nms_iou: opts.nms_iou, device: device_name(&dev) }
             }
             BackendKind::Sim => Backend::Sim(opts.sim_config()),
         })
@@ -101,14 +105,16 @@ impl Backend {
                 input_height: nanodet::INPUT_SIZE,
                 device: device.clone(),
                 input: InputKind::Rgb,
+                classes: coco_names(),
             },
-            Backend::YoloV8 { model, device, .. } => BackendInfo {
+            Backend::YoloV8 { model, classes, device, .. } => BackendInfo {
                 backend: "yolov8",
                 model: model.size().name().into(),
                 input_width: yolov8::INPUT_SIZE,
                 input_height: yolov8::INPUT_SIZE,
                 device: device.clone(),
                 input: InputKind::Rgb,
+                classes: classes.names().to_vec(),
             },
             Backend::Sim(_) => BackendInfo {
                 backend: "sim",
@@ -117,12 +123,14 @@ impl Backend {
                 input_height: 0,
                 device: "cpu".into(),
                 input: InputKind::Labels,
+                classes: coco_names(),
             },
         }
     }
 
     /// Runs a batch; one result per job, in order.
-    pub fn run(&self, jobs: &[Job]) -> Vec<Result<Vec<Detection>, DetectError>> {
+    pub fn run(&self, jobs: &[Job]) -> Vec<Result<Vec<Labeled>, DetectError>> {
+        let coco = |r: Result<Vec<Detection>, DetectError>| r.map(|ds| ds.into_iter().map(Labeled::coco).collect());
         match self {
             Backend::Sim(cfg) => jobs
                 .iter()
@@ -132,20 +140,58 @@ impl Backend {
                         Err(DetectError::InvalidArgument("the simulation backend needs frame.labels".into()))
                     }
                 })
+                .map(coco)
                 .collect(),
             Backend::NanoDet { model, nms_iou, .. } => {
-                run_images(jobs, |imgs, filters| model.detect(imgs, filters, *nms_iou))
+                run_images(jobs, |f| f.clone(), |imgs, filters| model.detect(imgs, filters, *nms_iou))
+                    .into_iter()
+                    .map(coco)
+                    .collect()
             }
-            Backend::YoloV8 { model, nms_iou, .. } => {
-                run_images(jobs, |imgs, filters| model.detect(imgs, filters, *nms_iou))
+            Backend::YoloV8 { model, classes, nms_iou, .. } => {
+                // Detection, NMS and class filtering in the model's classes; then reported as COCO.
+                let filter = |f: &DetectFilter| classes.model_filter(f);
+                run_images(jobs, filter, |imgs, filters| model.detect(imgs, filters, *nms_iou))
+                    .into_iter()
+                    .map(|r| r.map(|ds| ds.into_iter().map(|d| classes.report(d)).collect()))
+                    .collect()
             }
         }
     }
 }
 
-/// Runs the image jobs through `detect` as one batch; other jobs get an error.
-fn run_images<F>(jobs: &[Job], detect: F) -> Vec<Result<Vec<Detection>, DetectError>>
+fn coco_names() -> Vec<String> {
+    vlnav_proto::coco::CLASSES.iter().map(|c| c.to_string()).collect()
+}
+
+/// The YOLOv8 model's classes: its names file, or COCO-80 for an 80-class model
+/// without one; a names file that does not match the head is a start-up error.
+fn yolo_classes(opts: &Options, weights: &std::path::Path, num_classes: usize) -> anyhow::Result<ClassMap> {
+    let Some(path) = opts.yolo_names_path() else {
+        anyhow::ensure!(
+            num_classes == 80,
+            "{}: the model has {num_classes} classes, and there is no class-names file: pass --detector-yolo-names \
+             (YAML or JSON as ultralytics writes them, e.g. `names: {{0: Normal, 1: Fall}}`; see services/detector/README.md)",
+            weights.display()
+        );
+        return Ok(ClassMap::coco80());
+    };
+    let classes = ClassMap::load(&path)?;
+    anyhow::ensure!(
+        classes.len() == num_classes,
+        "{} names {} classes, but the model's head ({}) has {num_classes}",
+        path.display(),
+        classes.len(),
+        weights.display()
+    );
+    Ok(classes)
+}
+
+/// Runs the image jobs through `detect` as one batch, each with `filter_of` its
+/// request's filter; other jobs get an error.
+fn run_images<G, F>(jobs: &[Job], filter_of: G, detect: F) -> Vec<Result<Vec<Detection>, DetectError>>
 where
+    G: Fn(&DetectFilter) -> DetectFilter,
     F: Fn(&[&RgbImage], &[DetectFilter]) -> Result<Vec<Vec<Detection>>, ModelError>,
 {
     let mut results: Vec<Result<Vec<Detection>, DetectError>> = Vec::with_capacity(jobs.len());
@@ -156,7 +202,7 @@ where
         match &j.input {
             Input::Rgb(img) => {
                 images.push(img);
-                filters.push(j.filter.clone());
+                filters.push(filter_of(&j.filter));
                 slots.push(i);
                 results.push(Ok(Vec::new()));
             }
@@ -182,7 +228,7 @@ where
 }
 
 pub enum Msg {
-    Detect { job: Job, reply: oneshot::Sender<Result<Vec<Detection>, DetectError>> },
+    Detect { job: Job, reply: oneshot::Sender<Result<Vec<Labeled>, DetectError>> },
 }
 
 /// Starts the actor thread; it ends when every mailbox handle is dropped.

@@ -128,7 +128,7 @@ pub enum DecodeError {
 }
 
 /// Expected distance of one side: Σ softmax(logits)_i · i.
-fn expected_bin(logits: &[f32]) -> f32 {
+pub fn expected_bin(logits: &[f32]) -> f32 {
     let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
     let (mut num, mut den) = (0.0f32, 0.0f32);
     for (i, &l) in logits.iter().enumerate() {

@@ -18,7 +18,11 @@
 use std::collections::{BTreeMap, HashMap};
 use std::path::Path;
 
-use candle_core::{DType, Device, Tensor};
+use std::sync::Arc;
+
+use candle_core::{DType, Device, Module, Tensor};
+
+use crate::conv::{Activation, FusedConv};
 use serde::{Deserialize, Serialize};
 
 pub const GRAPH_FORMAT: &str = "vlnav-graph/1";
@@ -110,12 +114,17 @@ struct Step {
 enum Op {
     Input(usize),
     Identity,
-    /// `bias` is set when the following Add of a per-channel constant was fused in.
+    /// `bias` is set when the following Add of a per-channel constant was fused
+    /// in, `pad` when a zero Pad before it was, `act` when a LeakyRelu after it
+    /// was; `fused` is the one-pass CPU kernel (ungrouped, undilated convolutions).
     Conv2d {
         filter: Tensor,
         bias: Option<Tensor>,
         stride: usize,
         dilation: usize,
+        pad: usize,
+        act: Activation,
+        fused: Option<Arc<FusedConv>>,
     },
     Add,
     LeakyRelu(f64),
@@ -320,7 +329,7 @@ impl Graph {
                         Some(Value::Float(t)) if t.rank() == 4 => t.permute((3, 2, 0, 1))?.contiguous()?,
                         _ => return Err(node_err(node, "the filter must be a rank-4 float constant")),
                     };
-                    Op::Conv2d { filter, bias: None, stride, dilation }
+                    Op::Conv2d { filter, bias: None, stride, dilation, pad: 0, act: Activation::Identity, fused: None }
                 }
                 other => return Err(node_err(node, format!("op {other} is not supported"))),
             };
@@ -329,6 +338,14 @@ impl Graph {
 
         let outputs = def.outputs.iter().map(|o| parse_src(o, &index)).collect::<Result<Vec<_>, _>>()?;
         fuse_conv_bias(&mut steps, &consts, &consumers, &outputs)?;
+        fold_pads(&mut steps, &consts, &consumers, &outputs)?;
+        fuse_leaky_relu(&mut steps, &consumers, &outputs);
+        for step in &mut steps {
+            if let Op::Conv2d { filter, bias, stride, dilation: 1, pad, act, fused } = &mut step.op {
+                let b = bias.as_ref().map(|b| b.flatten_all()).transpose()?;
+                *fused = Some(Arc::new(FusedConv::new(filter, b.as_ref(), *stride, *pad, *act)?));
+            }
+        }
         let mut last_use = vec![0usize; n];
         for (si, step) in steps.iter().enumerate() {
             for s in &step.inputs {
@@ -476,7 +493,7 @@ impl Graph {
                 }
                 Value::Float(x.permute(perm)?)
             }
-            Op::Conv2d { filter, bias, stride, dilation } => {
+            Op::Conv2d { filter, bias, stride, dilation, pad, act, fused } => {
                 let x = float(0)?;
                 let nchw = x.permute((0, 3, 1, 2))?;
                 let cin = nchw.dim(1)?;
@@ -484,10 +501,19 @@ impl Graph {
                 if fin == 0 || cin % fin != 0 {
                     return Err(err(format!("input has {cin} channels, filter expects {fin}")));
                 }
-                let mut y = nchw.conv2d(filter, 0, *stride, *dilation, cin / fin)?;
-                if let Some(b) = bias {
-                    y = y.broadcast_add(b)?;
-                }
+                let y = match fused {
+                    Some(f) if cin == fin => f.forward(&nchw)?,
+                    _ => {
+                        let mut y = nchw.conv2d(filter, *pad, *stride, *dilation, cin / fin)?;
+                        if let Some(b) = bias {
+                            y = y.broadcast_add(b)?;
+                        }
+                        match act {
+                            Activation::Leaky(a) => y.maximum(&(&y * *a as f64)?)?,
+                            _ => y,
+                        }
+                    }
+                };
                 Value::Float(y.permute((0, 2, 3, 1))?)
             }
             Op::MaxPool { k, stride } => {
@@ -608,6 +634,120 @@ fn fuse_conv_bias(
         steps[i].inputs.truncate(1);
     }
     Ok(())
+}
+
+/// Follows `node`'s value forward through Identity and Transpose steps, each
+/// the sole reader of the previous value and no graph output; returns the
+/// step reading the end of the chain and the permutation the chain applies
+/// (`perm[d]`: which dimension of `node`'s value is dimension d at the end).
+fn chain_forward(
+    steps: &[Step],
+    step_of: &HashMap<usize, usize>,
+    consts: &HashMap<usize, Value>,
+    consumers: &[Vec<usize>],
+    outputs: &[Src],
+    node: usize,
+) -> Option<(usize, Vec<usize>)> {
+    let mut perm: Vec<usize> = (0..4).collect();
+    let mut at = node;
+    loop {
+        if consumers[at].len() != 1 || outputs.iter().any(|o| o.node == at) {
+            return None;
+        }
+        let next = *step_of.get(&consumers[at][0])?;
+        match &steps[next].op {
+            Op::Identity => {}
+            Op::Transpose => {
+                let Some(Value::Int(p)) = steps[next].inputs.get(1).and_then(|s| consts.get(&s.node)) else {
+                    return None;
+                };
+                if p.values.len() != 4 {
+                    return None;
+                }
+                perm = p.values.iter().map(|&v| perm.get(v as usize).copied()).collect::<Option<Vec<_>>>()?;
+            }
+            _ => return Some((next, perm)),
+        }
+        at = steps[next].node;
+    }
+}
+
+/// Folds `Pad` ops that only add equal zero borders to the height and width
+/// of a convolution's input (through transposes) into the convolution's
+/// padding: the padded copy of the activation is never made.
+fn fold_pads(
+    steps: &mut [Step],
+    consts: &HashMap<usize, Value>,
+    consumers: &[Vec<usize>],
+    outputs: &[Src],
+) -> Result<(), GraphError> {
+    let step_of: HashMap<usize, usize> = steps.iter().enumerate().map(|(i, s)| (s.node, i)).collect();
+    for i in 0..steps.len() {
+        if !matches!(steps[i].op, Op::Pad) || steps[i].inputs.len() != 2 {
+            continue;
+        }
+        let Some(Value::Int(p)) = consts.get(&steps[i].inputs[1].node) else { continue };
+        if p.shape != [4, 2] {
+            continue;
+        }
+        let Some((ci, perm)) = chain_forward(steps, &step_of, consts, consumers, outputs, steps[i].node) else {
+            continue;
+        };
+        // The convolution reads NHWC: its dims 1 and 2 are the pad's dims perm[1] and perm[2].
+        let amount = |d: usize| (p.values[2 * perm[d]], p.values[2 * perm[d] + 1]);
+        let (h, w) = (amount(1), amount(2));
+        let symmetric = h.0 == h.1 && w == h && h.0 > 0;
+        if !symmetric || amount(0) != (0, 0) || amount(3) != (0, 0) {
+            continue;
+        }
+        let Op::Conv2d { pad, dilation: 1, .. } = &mut steps[ci].op else { continue };
+        *pad += h.0 as usize;
+        steps[i].op = Op::Identity;
+        steps[i].inputs.truncate(1);
+    }
+    Ok(())
+}
+
+/// Fuses a LeakyRelu into the convolution whose output it reads (through
+/// the bias Add and transposes, each read by nothing else): the activation is
+/// applied in place as the convolution's output is produced.
+fn fuse_leaky_relu(steps: &mut [Step], consumers: &[Vec<usize>], outputs: &[Src]) {
+    let step_of: HashMap<usize, usize> = steps.iter().enumerate().map(|(i, s)| (s.node, i)).collect();
+    for ci in 0..steps.len() {
+        if !matches!(steps[ci].op, Op::Conv2d { act: Activation::Identity, .. }) {
+            continue;
+        }
+        // Transposes are only followed (their permutation does not matter to an elementwise op).
+        let Some(li) = chain_forward_any(steps, &step_of, consumers, outputs, steps[ci].node) else {
+            continue;
+        };
+        let Op::LeakyRelu(alpha) = steps[li].op else { continue };
+        if let Op::Conv2d { act, .. } = &mut steps[ci].op {
+            *act = Activation::Leaky(alpha as f32);
+        }
+        steps[li].op = Op::Identity;
+    }
+}
+
+/// [`chain_forward`] without reading permutations.
+fn chain_forward_any(
+    steps: &[Step],
+    step_of: &HashMap<usize, usize>,
+    consumers: &[Vec<usize>],
+    outputs: &[Src],
+    node: usize,
+) -> Option<usize> {
+    let mut at = node;
+    loop {
+        if consumers[at].len() != 1 || outputs.iter().any(|o| o.node == at) {
+            return None;
+        }
+        let next = *step_of.get(&consumers[at][0])?;
+        match &steps[next].op {
+            Op::Identity | Op::Transpose => at = steps[next].node,
+            _ => return Some(next),
+        }
+    }
 }
 
 /// Pads dimension `dim` of `x` with `left`/`right` copies of `value`.

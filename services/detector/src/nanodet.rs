@@ -66,6 +66,9 @@ impl From<crate::graph::GraphError> for ModelError {
     }
 }
 
+/// One level's head output of one image: (class probabilities, box logits).
+pub type LevelHead = (Vec<f32>, Vec<f32>);
+
 pub struct NanoDet {
     graph: Graph,
     device: Device,
@@ -91,7 +94,7 @@ impl NanoDet {
 
     /// Raw head outputs for a batch of letterboxed inputs: per image, per level,
     /// (class probabilities `[points·80]`, box logits `[points·44]`).
-    pub fn forward(&self, batch: &[Vec<f32>]) -> Result<Vec<Vec<(Vec<f32>, Vec<f32>)>>, ModelError> {
+    pub fn forward(&self, batch: &[Vec<f32>]) -> Result<Vec<Vec<LevelHead>>, ModelError> {
         let n = batch.len();
         let s = INPUT_SIZE as usize;
         let flat: Vec<f32> = batch.iter().flat_map(|v| v.iter().copied()).collect();

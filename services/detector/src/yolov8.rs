@@ -3,13 +3,18 @@
 //! head with `cv2.*` box branches, `cv3.*` class branches and `dfl.conv`).
 //! Each conv block is `<name>.conv.weight` + `<name>.bn.{weight,bias,
 //! running_mean,running_var}` (batch norm folded into the conv at load) or,
-//! for already-folded exports, `<name>.conv.weight` + `<name>.conv.bias`.
+//! for already-folded exports (every ONNX export), `<name>.conv.weight` +
+//! `<name>.conv.bias`. The scale is read from the stem's width and the number
+//! of classes from the class branch ([`inspect`]); the classes' names and their
+//! COCO ids come from a class-names file ([`crate::classes`]).
 //!
 //! Input: RGB / 255 letterboxed into 640×640 on a grey (114) canvas. The head
 //! is decoded outside the network ([`crate::detection::decode_dense`]): class
-//! sigmoid, four 16-bin distance distributions per point, × stride.
+//! sigmoid, four 16-bin distance distributions per point, × stride. Every
+//! convolution runs with its bias and SiLU fused ([`crate::conv`]).
 //!
-//! Converting an ultralytics checkpoint: the candle names map one to one onto
+//! Converting an ultralytics model: `tools/onnx_yolov8_to_safetensors.py` for
+//! an ONNX export; for a `.pt` checkpoint the candle names map one to one onto
 //! ultralytics' `model.N.*` modules (`model.0` → `net.b1.0`, `model.1` →
 //! `net.b1.1`, `model.2` → `net.b2.0`, `model.3` → `net.b2.1`, `model.4` →
 //! `net.b2.2`, `model.5` → `net.b3.0`, `model.6` → `net.b3.1`, `model.7` →
@@ -17,14 +22,15 @@
 //! `fpn.n1`, `model.15` → `fpn.n2`, `model.16` → `fpn.n3`, `model.18` →
 //! `fpn.n4`, `model.19` → `fpn.n5`, `model.21` → `fpn.n6`, `model.22` →
 //! `head`; inside C2f blocks `m.K` → `bottleneck.K`); see the README of this
-//! crate for a ready script.
+//! crate for both.
 
 use std::path::Path;
 
 use candle_core::{DType, Device, Module, Tensor};
-use candle_nn::{Conv2d, Conv2dConfig, VarBuilder};
+use candle_nn::{Conv2dConfig, VarBuilder};
 use image::RgbImage;
 
+use crate::conv::{Activation, FusedConv};
 use crate::detection::{DetectFilter, Detection, HeadLevel, HeadSpec, Letterbox, decode_dense, nms};
 use crate::nanodet::ModelError;
 use crate::preprocess::{InputSpec, letterbox_chw};
@@ -56,6 +62,11 @@ impl Size {
         }
     }
 
+    /// The scale whose stem convolution has `channels` outputs (16, 32, 48, 64, 80).
+    pub fn from_stem_channels(channels: usize) -> Option<Self> {
+        [Size::N, Size::S, Size::M, Size::L, Size::X].into_iter().find(|s| ch(64.0 * s.multiples().1) == channels)
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Size::N => "yolov8n",
@@ -77,7 +88,7 @@ enum Norm {
 }
 
 struct ConvBlock {
-    conv: Conv2d,
+    conv: FusedConv,
 }
 
 impl ConvBlock {
@@ -89,11 +100,11 @@ impl ConvBlock {
         } else {
             candle_nn::conv2d(c1, c2, k, cfg, vb.pp("conv"))?
         };
-        Ok(Self { conv })
+        Ok(Self { conv: FusedConv::new(conv.weight(), conv.bias(), stride, k / 2, Activation::Silu)? })
     }
 
     fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
-        candle_nn::ops::silu(&self.conv.forward(xs)?)
+        self.conv.forward(xs)
     }
 }
 
@@ -268,7 +279,7 @@ impl Neck {
 struct Branch {
     b0: ConvBlock,
     b1: ConvBlock,
-    out: Conv2d,
+    out: FusedConv,
 }
 
 impl Branch {
@@ -276,7 +287,10 @@ impl Branch {
         Ok(Self {
             b0: ConvBlock::load(vb.pp("0"), norm, c_in, c_mid, 3, 1)?,
             b1: ConvBlock::load(vb.pp("1"), norm, c_mid, c_mid, 3, 1)?,
-            out: candle_nn::conv2d(c_mid, c_out, 1, Default::default(), vb.pp("2"))?,
+            out: {
+                let conv = candle_nn::conv2d(c_mid, c_out, 1, Default::default(), vb.pp("2"))?;
+                FusedConv::new(conv.weight(), conv.bias(), 1, 0, Activation::Identity)?
+            },
         })
     }
 
@@ -324,6 +338,50 @@ pub struct LevelOutput {
     pub box_logits: Tensor,
 }
 
+/// What a weights file says about its model.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WeightsInfo {
+    pub size: Size,
+    pub num_classes: usize,
+}
+
+/// Reads the scale (stem width) and the number of classes (the class branch's
+/// output channels) from the safetensors header of `weights`.
+pub fn inspect(weights: &Path) -> Result<WeightsInfo, ModelError> {
+    use std::io::Read;
+    let invalid = |msg: String| ModelError::Invalid { path: weights.to_path_buf(), msg };
+    if !weights.is_file() {
+        return Err(ModelError::Missing(weights.to_path_buf()));
+    }
+    let mut f = std::fs::File::open(weights).map_err(|e| invalid(e.to_string()))?;
+    let mut len = [0u8; 8];
+    f.read_exact(&mut len).map_err(|e| invalid(format!("not a safetensors file ({e})")))?;
+    let len = u64::from_le_bytes(len);
+    if len > 100 << 20 {
+        return Err(invalid(format!("not a safetensors file (header length {len})")));
+    }
+    let mut header = vec![0u8; len as usize];
+    f.read_exact(&mut header).map_err(|e| invalid(format!("not a safetensors file ({e})")))?;
+    let header: serde_json::Value =
+        serde_json::from_slice(&header).map_err(|e| invalid(format!("not a safetensors file ({e})")))?;
+    let shape = |name: &str| -> Result<Vec<usize>, ModelError> {
+        header[name]["shape"]
+            .as_array()
+            .and_then(|a| a.iter().map(|v| v.as_u64().map(|v| v as usize)).collect::<Option<Vec<_>>>())
+            .ok_or_else(|| {
+                invalid(format!(
+                    "no tensor {name}: not YOLOv8 weights in candle naming (see services/detector/README.md)"
+                ))
+            })
+    };
+    let stem = shape("net.b1.0.conv.weight")?;
+    let size = Size::from_stem_channels(stem[0]).ok_or_else(|| {
+        invalid(format!("a {}-channel stem is no YOLOv8 scale (n 16, s 32, m 48, l 64, x 80)", stem[0]))
+    })?;
+    let num_classes = shape("head.cv3.0.2.weight")?[0];
+    Ok(WeightsInfo { size, num_classes })
+}
+
 pub struct YoloV8 {
     net: Backbone,
     fpn: Neck,
@@ -334,15 +392,23 @@ pub struct YoloV8 {
 }
 
 impl YoloV8 {
-    /// Loads `<weights>` (safetensors, candle naming) for a model of `size`.
-    pub fn load(weights: &Path, size: Size, num_classes: usize, device: &Device) -> Result<Self, ModelError> {
-        if !weights.is_file() {
-            return Err(ModelError::Missing(weights.to_path_buf()));
-        }
+    /// Loads `<weights>` (safetensors, candle naming). The scale and the number
+    /// of classes are read from the weights; a given `size` must match them.
+    pub fn load(weights: &Path, size: Option<Size>, device: &Device) -> Result<Self, ModelError> {
+        let found = inspect(weights)?;
+        let size = match size {
+            Some(s) if s != found.size => {
+                return Err(ModelError::Invalid {
+                    path: weights.to_path_buf(),
+                    msg: format!("not {} weights: the stem has the width of {}", s.name(), found.size.name()),
+                });
+            }
+            _ => found.size,
+        };
         // SAFETY: the file is memory-mapped read-only and not modified while the model lives.
         let vb = unsafe { VarBuilder::from_mmaped_safetensors(&[weights], DType::F32, device) }
             .map_err(|e| ModelError::Invalid { path: weights.to_path_buf(), msg: e.to_string() })?;
-        Self::from_var_builder(vb, Norm::Detect, size, num_classes, device).map_err(|e| ModelError::Invalid {
+        Self::from_var_builder(vb, Norm::Detect, size, found.num_classes, device).map_err(|e| ModelError::Invalid {
             path: weights.to_path_buf(),
             msg: format!("not {} weights: {e}", size.name()),
         })
@@ -379,6 +445,10 @@ impl YoloV8 {
         self.size
     }
 
+    pub fn num_classes(&self) -> usize {
+        self.num_classes
+    }
+
     /// Runs the network on a `[batch, 3, 640, 640]` input.
     pub fn forward(&self, xs: &Tensor) -> candle_core::Result<Vec<LevelOutput>> {
         let (p3, p4, p5) = self.net.forward(xs)?;
@@ -395,7 +465,44 @@ impl YoloV8 {
         Ok(out)
     }
 
-    /// Detects objects in each image; `filters[i]` applies to `images[i]`.
+    /// The head's predictions in the layout of ultralytics' ONNX export
+    /// (`output0`): per image, `[4 + classes][points]` channel-major, rows
+    /// centre x, centre y, width, height (network-input pixels), then the class
+    /// probabilities; points level by level (strides 8, 16, 32), row-major.
+    pub fn predictions(&self, levels: &[LevelOutput]) -> candle_core::Result<Vec<Vec<f32>>> {
+        let nc = self.num_classes;
+        let total: usize = levels.iter().map(|l| l.width * l.height).sum();
+        let batch = levels.first().map_or(Ok(0), |l| l.scores.dim(0))?;
+        let mut out = vec![vec![0f32; (4 + nc) * total]; batch];
+        let mut offset = 0;
+        for l in levels {
+            let points = l.width * l.height;
+            let scores = l.scores.to_device(&Device::Cpu)?.to_vec3::<f32>()?;
+            let logits = l.box_logits.to_device(&Device::Cpu)?.to_vec3::<f32>()?;
+            for (b, img) in out.iter_mut().enumerate() {
+                for p in 0..points {
+                    let side =
+                        |k: usize| crate::detection::expected_bin(&logits[b][p][k * REG_BINS..(k + 1) * REG_BINS]);
+                    let (cx, cy) = ((p % l.width) as f32 + 0.5, (p / l.width) as f32 + 0.5);
+                    let (x0, y0, x1, y1) = (cx - side(0), cy - side(1), cx + side(2), cy + side(3));
+                    let s = l.stride as f32;
+                    let col = offset + p;
+                    img[col] = (x0 + x1) / 2.0 * s;
+                    img[total + col] = (y0 + y1) / 2.0 * s;
+                    img[2 * total + col] = (x1 - x0) * s;
+                    img[3 * total + col] = (y1 - y0) * s;
+                    for c in 0..nc {
+                        img[(4 + c) * total + col] = scores[b][p][c];
+                    }
+                }
+            }
+            offset += points;
+        }
+        Ok(out)
+    }
+
+    /// Detects objects in each image; `filters[i]` applies to `images[i]`;
+    /// class ids are the model's class indices (see [`crate::classes`]).
     pub fn detect(
         &self,
         images: &[&RgbImage],
@@ -486,7 +593,8 @@ mod tests {
         let numel: usize = s.values().map(|v| v.iter().product::<usize>()).sum();
         assert_eq!(numel - stats, 3_157_200);
 
-        let model = YoloV8::load(&path, Size::N, 80, &Device::Cpu).unwrap();
+        let model = YoloV8::load(&path, None, &Device::Cpu).unwrap();
+        assert_eq!((model.size(), model.num_classes()), (Size::N, 80));
         let x = Tensor::zeros((1, 3, 640, 640), DType::F32, &Device::Cpu).unwrap();
         let levels = model.forward(&x).unwrap();
         let dims: Vec<(usize, Vec<usize>, Vec<usize>)> =
@@ -500,7 +608,7 @@ mod tests {
             ]
         );
         // Loading with the wrong scale fails, naming it.
-        let e = YoloV8::load(&path, Size::S, 80, &Device::Cpu).err().unwrap().to_string();
+        let e = YoloV8::load(&path, Some(Size::S), &Device::Cpu).err().unwrap().to_string();
         assert!(e.contains("not yolov8s weights"), "{e}");
     }
 
@@ -515,7 +623,8 @@ mod tests {
             let bn: usize = s.iter().filter(|(k, _)| k.contains(".bn.running_")).map(|(_, v)| v[0]).sum();
             let numel: usize = s.values().map(|v| v.iter().product::<usize>()).sum();
             assert_eq!(numel - bn, params, "{}", size.name());
-            YoloV8::load(&path, size, 80, &Device::Cpu).unwrap();
+            assert_eq!(inspect(&path).unwrap(), WeightsInfo { size, num_classes: 80 });
+            YoloV8::load(&path, Some(size), &Device::Cpu).unwrap();
         }
         // An export with batch norm already folded (conv.bias instead of bn.*) loads too.
         let path = dir.path().join("yolov8s.safetensors");
@@ -530,6 +639,6 @@ mod tests {
         }
         let folded_path = dir.path().join("folded.safetensors");
         candle_core::safetensors::save(&folded, &folded_path).unwrap();
-        YoloV8::load(&folded_path, Size::S, 80, &Device::Cpu).unwrap();
+        YoloV8::load(&folded_path, None, &Device::Cpu).unwrap();
     }
 }

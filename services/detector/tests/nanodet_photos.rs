@@ -92,23 +92,6 @@ async fn cyclists_astronaut_cup_and_cat() {
     svc.stop().await.unwrap();
 }
 
-/// Reads a little-endian float32 C-order array from a `.npy` file.
-fn parse_npy_f32(bytes: &[u8]) -> (Vec<usize>, Vec<f32>) {
-    assert_eq!(&bytes[..6], b"\x93NUMPY", "not a .npy file");
-    let (header_len, start) = match bytes[6] {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        _ => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
-    };
-    let header = std::str::from_utf8(&bytes[start..start + header_len]).unwrap();
-    assert!(header.contains("'descr': '<f4'") && header.contains("'fortran_order': False"), "{header}");
-    let shape_txt = header.split("'shape': (").nth(1).unwrap().split(')').next().unwrap();
-    let shape: Vec<usize> = shape_txt.split(',').filter_map(|s| s.trim().parse().ok()).collect();
-    let data = &bytes[start + header_len..];
-    let values: Vec<f32> = data.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-    assert_eq!(values.len(), shape.iter().product::<usize>());
-    (shape, values)
-}
-
 fn median(mut v: Vec<f32>) -> f32 {
     assert!(!v.is_empty());
     let mid = v.len() / 2;

@@ -109,14 +109,19 @@ async fn missing_models_fail_at_start_with_the_fix() {
     assert!(err.contains("nanodet.graph.json") && err.contains("deploy/fetch-models.sh"), "{err}");
     let opts = Options { backend: BackendKind::Yolov8, models_dir: empty.path().to_path_buf(), ..Default::default() };
     let err = vlnav_detector::services(&opts, &Default::default()).await.err().expect("must fail").to_string();
-    assert!(err.contains("yolov8n.safetensors") && err.contains("--detector-yolo-weights"), "{err}");
+    assert!(
+        err.contains("fall-yolov8s.safetensors")
+            && err.contains("deploy/fetch-models.sh")
+            && err.contains("--detector-yolo-weights"),
+        "{err}"
+    );
     // Weights of the wrong model scale are rejected, naming the file.
     let small = empty.path().join("yolov8n.safetensors");
     vlnav_detector::yolov8::YoloV8::write_random_weights(&small, vlnav_detector::yolov8::Size::N, 80).unwrap();
     let opts = Options {
         backend: BackendKind::Yolov8,
         yolo_weights: Some(small.clone()),
-        yolo_size: vlnav_detector::yolov8::Size::S,
+        yolo_size: Some(vlnav_detector::yolov8::Size::S),
         ..Default::default()
     };
     let err = vlnav_detector::services(&opts, &Default::default()).await.err().expect("must fail").to_string();
