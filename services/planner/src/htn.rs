@@ -74,6 +74,8 @@ pub fn check_input(text: &str) -> Result<(), InputError> {
 pub struct Parsed {
     pub outcome: Outcome,
     pub notes: Vec<String>,
+    /// Places named that no detectable class covers; the plan goes without them.
+    pub ungrounded: Vec<String>,
 }
 
 impl Parsed {
@@ -86,6 +88,7 @@ impl Parsed {
         Parsed {
             outcome: Outcome::Clarify(Clarification { question: question.into(), reason: reason.into(), options }),
             notes,
+            ungrounded: Vec::new(),
         }
     }
 }
@@ -1156,5 +1159,5 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
             notes,
         );
     }
-    Parsed { outcome: Outcome::Plan(Plan::new(steps)), notes }
+    Parsed { outcome: Outcome::Plan(Plan::new(steps)), notes, ungrounded: Vec::new() }
 }
