@@ -36,9 +36,13 @@ fn main() -> anyhow::Result<()> {
     while let Some(a) = args.next() {
         match a.as_str() {
             "--backend" => backend = args.next().ok_or_else(|| anyhow::anyhow!("--backend needs a name"))?,
-            "--per-category" => per_category = args.next().ok_or_else(|| anyhow::anyhow!("--per-category needs N"))?.parse()?,
+            "--per-category" => {
+                per_category = args.next().ok_or_else(|| anyhow::anyhow!("--per-category needs N"))?.parse()?
+            }
             "--limit" => limit = args.next().ok_or_else(|| anyhow::anyhow!("--limit needs N"))?.parse()?,
-            "--openai-url" => openai_url = Some(args.next().ok_or_else(|| anyhow::anyhow!("--openai-url needs a URL"))?),
+            "--openai-url" => {
+                openai_url = Some(args.next().ok_or_else(|| anyhow::anyhow!("--openai-url needs a URL"))?)
+            }
             "--llama-server" => start_llama = true,
             "--threads" => threads = args.next().ok_or_else(|| anyhow::anyhow!("--threads needs N"))?.parse()?,
             "--misses" => show_misses = true,

@@ -299,8 +299,10 @@ mod tests {
 
     #[test]
     fn reads_the_notation() {
-        let e = parse_expected("MOVE 2 1.57; FIND 56 ref=60 d=1; FOLLOW 0 person=david t=30; RETURN; ungrounded the Kitchen")
-            .unwrap();
+        let e = parse_expected(
+            "MOVE 2 1.57; FIND 56 ref=60 d=1; FOLLOW 0 person=david t=30; RETURN; ungrounded the Kitchen",
+        )
+        .unwrap();
         let Expected::Plan { steps, ungrounded } = e else { panic!() };
         assert_eq!(steps.len(), 4);
         assert_eq!((steps[0].f_dist, steps[0].yaw), (2.0, 1.57));

@@ -122,7 +122,12 @@ pub fn plan_with(model: &mut dyn ChatModel, instruction: &str, validator: &Valid
         Ok(text) => match validator.validate_text(&text) {
             Ok(v) => {
                 notes.extend(v.notes);
-                return Planned { outcome: Outcome::Plan(v.plan), backend: name.to_string(), notes, ungrounded: vec![] };
+                return Planned {
+                    outcome: Outcome::Plan(v.plan),
+                    backend: name.to_string(),
+                    notes,
+                    ungrounded: vec![],
+                };
             }
             Err(errors) => {
                 notes.push(format!("{name}: output rejected by the validator: {}", errors.join("; ")));
@@ -138,7 +143,12 @@ pub fn plan_with(model: &mut dyn ChatModel, instruction: &str, validator: &Valid
                         Ok(v) => {
                             notes.push(format!("{name}: repaired after one round"));
                             notes.extend(v.notes);
-                            return Planned { outcome: Outcome::Plan(v.plan), backend: name.to_string(), notes, ungrounded: vec![] };
+                            return Planned {
+                                outcome: Outcome::Plan(v.plan),
+                                backend: name.to_string(),
+                                notes,
+                                ungrounded: vec![],
+                            };
                         }
                         Err(errors) => errors,
                     },

@@ -188,7 +188,12 @@ impl Planner {
     }
 
     fn checked(&self, parsed: Parsed, backend: &str) -> Planned {
-        Planned { outcome: parsed.outcome, backend: backend.to_string(), notes: parsed.notes, ungrounded: parsed.ungrounded }
+        Planned {
+            outcome: parsed.outcome,
+            backend: backend.to_string(),
+            notes: parsed.notes,
+            ungrounded: parsed.ungrounded,
+        }
     }
 
     /// The last gate: a plan leaves only if the validator accepts it (with its splits).

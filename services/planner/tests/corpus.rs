@@ -14,7 +14,7 @@ use vlnav_planner::validate::Validator;
 
 /// The share of the corpus the rule-based planner must get right (the parser
 /// as written before the corpus: 155 of 330, 47.0 %).
-const REQUIRED_ACCURACY: f64 = 0.47;
+const REQUIRED_ACCURACY: f64 = 0.95;
 
 fn corpus_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/corpus")
@@ -32,12 +32,19 @@ fn the_rule_planner_understands_the_paraphrase_corpus() {
         let planned = planner.plan(&case.instruction, "rules").unwrap_or_else(|e| panic!("{}: {e}", case.at));
         assert_eq!(planned.backend, "rules");
         if let Outcome::Plan(plan) = &planned.outcome {
-            validator.validate_plan(plan).unwrap_or_else(|e| panic!("{}: an invalid plan left the planner: {e:?}", case.at));
+            validator
+                .validate_plan(plan)
+                .unwrap_or_else(|e| panic!("{}: an invalid plan left the planner: {e:?}", case.at));
         }
         let verdict = corpus::judge(&case.expected, &planned);
         tally.add(&case.category, verdict.is_ok());
         if let Err(why) = verdict {
-            misses.push(format!("{} {:?}\n    got  {}\n    why  {why}", case.at, case.instruction, corpus::describe(&planned)));
+            misses.push(format!(
+                "{} {:?}\n    got  {}\n    why  {why}",
+                case.at,
+                case.instruction,
+                corpus::describe(&planned)
+            ));
         }
     }
     println!("{}", tally.markdown());
