@@ -297,6 +297,24 @@ impl Grounder {
     }
 }
 
+/// Every word of every class name and synonym ("teddy", "bear", "sofa", …),
+/// the vocabulary misspelt targets are corrected to.
+pub fn class_words() -> &'static [&'static str] {
+    static WORDS: std::sync::OnceLock<Vec<&'static str>> = std::sync::OnceLock::new();
+    WORDS.get_or_init(|| {
+        let mut v: Vec<&'static str> = coco::CLASSES
+            .iter()
+            .copied()
+            .chain(SYNONYMS.iter().map(|(s, _)| *s))
+            .flat_map(str::split_whitespace)
+            .filter(|w| w.len() > 2)
+            .collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    })
+}
+
 /// A class name or synonym, as is or in the singular.
 fn lexical_exact(word: &str) -> Option<Grounding> {
     let exact = |p: &str| -> Option<Grounding> {

@@ -7,7 +7,7 @@ use vlnav_proto::v1 as pb;
 use vlnav_runtime::actor::Mailbox;
 
 use crate::actor::Msg;
-use crate::plan::{Action, Clarification, Outcome, Plan, Planned, Step};
+use crate::plan::{Action, Clarification, Outcome, Plan, Planned, Reference, Step};
 use crate::planner::PlanError;
 use crate::validate::{PLAN_SCHEMA, Validator};
 
@@ -49,6 +49,11 @@ pub fn step_to_proto(s: &Step) -> pb::ActionStep {
         person: s.person.clone().unwrap_or_default(),
         d_s: s.d_s.unwrap_or(0.0),
         duration_s: s.duration_s.unwrap_or(0.0),
+        reference: s.reference.as_ref().map(|r| pb::TargetReference {
+            relation: r.relation.clone(),
+            target: r.target.clone(),
+            class_id: r.class_id,
+        }),
     }
 }
 
@@ -83,6 +88,11 @@ pub fn plan_from_proto(p: &pb::ActionPlan) -> Result<Plan, Status> {
             person: (keyed && !s.person.is_empty()).then(|| s.person.clone()),
             d_s: (keyed && s.d_s != 0.0).then_some(s.d_s),
             duration_s: (action == Action::Follow && s.duration_s != 0.0).then_some(s.duration_s),
+            reference: s.reference.as_ref().filter(|_| keyed).map(|r| Reference {
+                relation: r.relation.clone(),
+                target: r.target.clone(),
+                class_id: r.class_id,
+            }),
         });
     }
     Ok(Plan::new(steps))
@@ -98,7 +108,7 @@ fn response(p: Planned) -> pb::PlanResponse {
         Outcome::Plan(plan) => pb::plan_response::Outcome::Plan(plan_to_proto(plan)),
         Outcome::Clarify(c) => pb::plan_response::Outcome::Clarification(clarification_to_proto(c)),
     };
-    pb::PlanResponse { outcome: Some(outcome), plan_json, backend: p.backend, notes: p.notes }
+    pb::PlanResponse { outcome: Some(outcome), plan_json, backend: p.backend, notes: p.notes, ungrounded: p.ungrounded }
 }
 
 #[tonic::async_trait]

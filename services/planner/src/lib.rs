@@ -13,22 +13,26 @@
 //! Schema in `schema/action_plan.schema.json` plus semantic rules); an LLM
 //! gets one repair round, then the rule parser answers. Layout: [`plan`],
 //! [`validate`], [`htn`], [`grounding`], [`minilm`], [`replan`], [`llm`],
-//! [`openai`], [`gguf`] — pure logic; [`planner`] ties them together;
+//! [`openai`], [`gguf`], [`corpus`] (the paraphrase corpus and its scoring)
+//! — pure logic; [`planner`] ties them together;
 //! [`actor`] owns the models; [`grpc`] is the tonic layer.
 
 use std::path::PathBuf;
 
 pub mod actor;
+pub mod corpus;
 pub mod gguf;
 pub mod grounding;
 pub mod grpc;
 pub mod htn;
+pub mod llama_server;
 pub mod llm;
 pub mod minilm;
 pub mod openai;
 pub mod plan;
 pub mod planner;
 pub mod replan;
+pub mod typo;
 pub mod validate;
 
 pub use vlnav_runtime::ports::PLANNER as DEFAULT_PORT;

@@ -1,6 +1,6 @@
 //! The closed action set and its JSON form (the paper's keys: `action`,
 //! `desc`, `f_dist`, `yaw`, `target`, `id`, plus `person`, `d_s`,
-//! `duration_s` where used). Plain Rust types; no proto.
+//! `duration_s` and `ref` where used). Plain Rust types; no proto.
 
 use serde_json::{Map, Value, json};
 
@@ -57,6 +57,34 @@ pub struct Step {
     pub d_s: Option<f64>,
     /// FOLLOW: how long, seconds.
     pub duration_s: Option<f64>,
+    /// FIND / FOLLOW: the object the target was described by ("the chair
+    /// next to the table"); the executor prefers the instance nearest it.
+    pub reference: Option<Reference>,
+}
+
+/// A target described by its relation to another object (JSON key `ref`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Reference {
+    /// As spoken: "next to", "on", "behind".
+    pub relation: String,
+    /// The reference object's phrase and COCO-80 class id.
+    pub target: String,
+    pub class_id: i32,
+}
+
+impl Reference {
+    pub fn to_json(&self) -> Value {
+        json!({"relation": self.relation, "target": self.target, "id": self.class_id})
+    }
+
+    fn from_json(v: &Value) -> Option<Reference> {
+        let o = v.as_object()?;
+        Some(Reference {
+            relation: o.get("relation").and_then(Value::as_str).unwrap_or_default().to_string(),
+            target: o.get("target").and_then(Value::as_str).unwrap_or_default().to_string(),
+            class_id: o.get("id").and_then(Value::as_i64).map(|x| x.clamp(-1, i32::MAX as i64) as i32).unwrap_or(-1),
+        })
+    }
 }
 
 impl Step {
@@ -87,6 +115,7 @@ impl Step {
             person: None,
             d_s: None,
             duration_s: None,
+            reference: None,
         }
     }
 
@@ -133,6 +162,9 @@ impl Step {
                 }
                 if let (Action::Follow, Some(t)) = (self.action, self.duration_s) {
                     m.insert("duration_s".into(), number(t));
+                }
+                if let Some(r) = &self.reference {
+                    m.insert("ref".into(), r.to_json());
                 }
             }
             Action::Return => {}
@@ -194,6 +226,7 @@ impl Plan {
                 person: s("person"),
                 d_s: f("d_s"),
                 duration_s: f("duration_s"),
+                reference: o.get("ref").and_then(Reference::from_json),
             });
         }
         Ok(Plan { steps })
@@ -216,12 +249,14 @@ pub enum Outcome {
 }
 
 /// The planner's answer: the outcome, the backend whose output was accepted,
-/// and notes on what happened on the way.
+/// notes on what happened on the way, and the places named that no
+/// detectable class covers (the plan goes without them).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Planned {
     pub outcome: Outcome,
     pub backend: String,
     pub notes: Vec<String>,
+    pub ungrounded: Vec<String>,
 }
 
 impl Planned {
@@ -244,10 +279,14 @@ mod tests {
             Step::moving("turn right", 2.5, -1.57),
             Step::follow("david", 0).with_person("david").with_duration(30.0),
             Step::go_back(""),
+            Step {
+                reference: Some(Reference { relation: "next to".into(), target: "table".into(), class_id: 60 }),
+                ..Step::find("chair", 56)
+            },
         ]);
         let j = plan.to_json_string();
         let expected: Value = serde_json::from_str(
-            r#"[{"action":"FIND","target":"statue (human)","id":0},{"action":"MOVE","desc":"turn right","f_dist":2.5,"yaw":-1.57},{"action":"FOLLOW","target":"david","id":0,"person":"david","duration_s":30.0},{"action":"RETURN"}]"#,
+            r#"[{"action":"FIND","target":"statue (human)","id":0},{"action":"MOVE","desc":"turn right","f_dist":2.5,"yaw":-1.57},{"action":"FOLLOW","target":"david","id":0,"person":"david","duration_s":30.0},{"action":"RETURN"},{"action":"FIND","target":"chair","id":56,"ref":{"relation":"next to","target":"table","id":60}}]"#,
         )
         .unwrap();
         assert_eq!(serde_json::from_str::<Value>(&j).unwrap(), expected);

@@ -150,7 +150,12 @@ impl Planner {
         let planned = match Self::model(&mut self.openai, &mut self.gguf, &backend)? {
             None => {
                 let parsed = htn::parse(instruction, &self.grounder);
-                Planned { outcome: parsed.outcome, backend: "rules".into(), notes: parsed.notes }
+                Planned {
+                    outcome: parsed.outcome,
+                    backend: "rules".into(),
+                    notes: parsed.notes,
+                    ungrounded: parsed.ungrounded,
+                }
             }
             Some(model) => llm::plan_with(model, instruction, &self.validator, &self.grounder),
         };
@@ -183,7 +188,12 @@ impl Planner {
     }
 
     fn checked(&self, parsed: Parsed, backend: &str) -> Planned {
-        Planned { outcome: parsed.outcome, backend: backend.to_string(), notes: parsed.notes }
+        Planned {
+            outcome: parsed.outcome,
+            backend: backend.to_string(),
+            notes: parsed.notes,
+            ungrounded: parsed.ungrounded,
+        }
     }
 
     /// The last gate: a plan leaves only if the validator accepts it (with its splits).

@@ -92,9 +92,10 @@ pub fn replan(
                     options: vec!["go back".into()],
                 }),
                 notes,
+                ungrounded: vec![],
             });
         }
-        Ok(Parsed { outcome: Outcome::Plan(Plan::new(steps)), notes })
+        Ok(Parsed { outcome: Outcome::Plan(Plan::new(steps)), notes, ungrounded: vec![] })
     };
 
     if SKIP.contains(&a.as_str()) || a.starts_with("skip ") {
@@ -141,7 +142,7 @@ pub fn replan(
             if let Outcome::Clarify(_) = parsed.outcome
                 && !phrase.contains(' ')
             {
-                return Ok(Parsed { outcome: parsed.outcome, notes });
+                return Ok(Parsed { outcome: parsed.outcome, notes, ungrounded: parsed.ungrounded });
             }
         }
     }
@@ -159,7 +160,7 @@ pub fn replan(
         }
         Outcome::Clarify(c) => {
             notes.extend(parsed.notes);
-            Ok(Parsed { outcome: Outcome::Clarify(c), notes })
+            Ok(Parsed { outcome: Outcome::Clarify(c), notes, ungrounded: vec![] })
         }
     }
 }
