@@ -277,6 +277,11 @@ pub fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
         person: s.person.clone(),
         d_s: s.d_s,
         duration_s: s.duration_s,
+        reference: s.reference.as_ref().map(|r| TargetReference {
+            relation: r.relation.clone(),
+            target: r.target.clone(),
+            class_id: r.class_id,
+        }),
     }
 }
 
@@ -291,6 +296,11 @@ pub fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
         person: s.person.clone(),
         d_s: s.d_s,
         duration_s: s.duration_s,
+        reference: s.reference.as_ref().map(|r| pb::TargetReference {
+            relation: r.relation.clone(),
+            target: r.target.clone(),
+            class_id: r.class_id,
+        }),
     }
 }
 

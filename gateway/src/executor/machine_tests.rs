@@ -17,6 +17,7 @@ fn step(action: Action) -> PlanStep {
         person: String::new(),
         d_s: 0.0,
         duration_s: 0.0,
+        reference: None,
     }
 }
 

@@ -61,6 +61,17 @@ pub struct PlanStep {
     pub d_s: f64,
     /// FOLLOW: seconds to follow (0: the default).
     pub duration_s: f64,
+    /// FIND / FOLLOW: the object the target was described by ("the chair next
+    /// to the table"), carried with the plan.
+    pub reference: Option<TargetReference>,
+}
+
+/// An object a target is described by its relation to.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TargetReference {
+    pub relation: String,
+    pub target: String,
+    pub class_id: i32,
 }
 
 /// A detected box in image pixels.
