@@ -1,5 +1,5 @@
 //! Gateway settings: where the stage services are, where missions persist,
-//! and the executor's parameters (SPEC.md §2, the authors' values by default).
+//! and the executor's parameters (docs/design.md §2, the authors' values by default).
 
 use std::path::PathBuf;
 

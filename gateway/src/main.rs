@@ -9,7 +9,7 @@ use vlnav_gateway::up::{UpArgs, up};
 use vlnav_gateway::{GatewayOptions, api::Gateway};
 use vlnav_runtime::{CancellationToken, ServerConfig, ports, telemetry};
 
-/// The paper's Case 2 instruction (SPEC.md §2).
+/// The paper's Case 2 instruction (docs/design.md §2).
 pub const CASE_2: &str = "Buddy take left turn, move 4 m ahead, then find the standing person to reach close to it, \
 In your right you may see the visitor chair follow it. Finally go at spot where bicycle is standing.";
 

@@ -125,6 +125,6 @@ pub fn json_objects(text: &str) -> Vec<serde_json::Value> {
         .collect()
 }
 
-/// The paper's Case 2 instruction (SPEC.md §2).
+/// The paper's Case 2 instruction (docs/design.md §2).
 pub const CASE_2: &str = "Buddy take left turn, move 4 m ahead, then find the standing person to reach close to it, \
 In your right you may see the visitor chair follow it. Finally go at spot where bicycle is standing.";

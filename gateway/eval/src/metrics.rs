@@ -1,4 +1,4 @@
-//! Per-trial metrics, as the paper defines them (SPEC §6), from plain values:
+//! Per-trial metrics, as the paper defines them (docs/design.md §6), from plain values:
 //! the mission's end state, the simulator's ground truth and the scenario's
 //! expected destination.
 //!

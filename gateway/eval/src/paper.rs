@@ -1,4 +1,4 @@
-//! The paper's published figures (SPEC §6), for the side-by-side tables.
+//! The paper's published figures (docs/design.md §6), for the side-by-side tables.
 
 /// One row of the paper's Table V (50 trials per environment).
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,4 +1,4 @@
-//! Motion-primitive local planner (`vlnav.v1.LocalPlannerService`), SPEC §4.
+//! Motion-primitive local planner (`vlnav.v1.LocalPlannerService`), docs/design.md §4.
 //!
 //! - [`paths`]: the CMU path library (343 primitives), generated at start-up;
 //! - [`lookup`]: the trapezoidal voxel → paths table, as bit sets;

@@ -1,5 +1,5 @@
 //! The motion-primitive library, generated in code from the CMU recipe
-//! (`path_generator.m`, SPEC §4).
+//! (`path_generator.m`, docs/design.md §4).
 //!
 //! Paths are polar curves: at radius `r` from the robot a path lies at angle
 //! `shift(r)`, a not-a-knot cubic spline through the waypoints

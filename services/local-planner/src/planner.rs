@@ -1,5 +1,5 @@
 //! Path selection: which primitive, at which rotation and scale, is free and
-//! cheapest (SPEC §4).
+//! cheapest (docs/design.md §4).
 //!
 //! For every obstacle cell within the path range (and not beyond the goal
 //! plus `goal_clear_range`, so the target itself never blocks the approach)

@@ -12,7 +12,7 @@ use vlnav_planner::validate::Validator;
 /// (instruction, expected plan in the paper's JSON form; MOVE/RETURN `desc` is not compared).
 /// An expected value of "?" means a clarification question.
 const TABLE: &[(&str, &str)] = &[
-    // The paper's published examples (SPEC §2).
+    // The paper's published examples (docs/design.md §2).
     (
         "Buddy go to the statue (human), take a right turn and move a little ahead, then find the visitor chair to reach close to it, and on the right you may see a bicycle.",
         r#"[{"action":"FIND","target":"statue (human)","id":0},{"action":"MOVE","f_dist":2.5,"yaw":-1.57},{"action":"FIND","target":"visitor chair","id":56},{"action":"FIND","target":"bicycle","id":1}]"#,

@@ -13,7 +13,7 @@ use vlnav_runtime::testing::{self, Connected};
 
 const W: u32 = 640;
 const H: u32 = 480;
-/// The D455 intrinsics used on the real robot (SPEC §1).
+/// The D455 intrinsics used on the real robot (docs/design.md §1).
 const K: (f64, f64, f64, f64) = (388.6187, 388.6187, 320.6609, 239.7847);
 /// Camera 0.6 m up, 0.3 m ahead of base_link, pitched 0.35 rad down.
 const MOUNT: ([f64; 3], f64) = ([0.3, 0.0, 0.6], 0.35);

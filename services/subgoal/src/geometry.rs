@@ -1,4 +1,4 @@
-//! The subgoal formulas (SPEC §3), pure functions on plain types.
+//! The subgoal formulas (docs/design.md §3), pure functions on plain types.
 //!
 //! - Egocentric MOVE: turn by `yaw` relative to the anchor's heading, then
 //!   drive `f_dist`: `G = [x_a, y_a] + R(θ_a + yaw)·[f_dist, 0]`, heading

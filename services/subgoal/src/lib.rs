@@ -1,5 +1,5 @@
 //! Subgoal estimator (`vlnav.v1.SubgoalService`): egocentric MOVE steps and
-//! detected boxes in RGB-D frames become goals in the odometry frame (SPEC §3).
+//! detected boxes in RGB-D frames become goals in the odometry frame (docs/design.md §3).
 //!
 //! - [`geometry`]: the formulas — MOVE, box median depth, back-projection,
 //!   camera mount, base → odom, the approach goal `d_s` short of the target;
