@@ -223,8 +223,12 @@ impl GemmaChat {
             }
             out_ids.push(next);
             let text = self.tokenizer.decode(&out_ids);
-            // One plan per line, as in the examples.
-            if text.contains('\n') || extract_json(&format!("{ANSWER_OPENING}{text}")).is_some() {
+            // The answer ends where its JSON closes; a model that wanders on
+            // into a blank line or the next example has stopped answering.
+            if extract_json(&format!("{ANSWER_OPENING}{text}")).is_some()
+                || text.contains("\n\n")
+                || text.contains("Instruction:")
+            {
                 break;
             }
             logits = Self::logits(&mut state, &[next], pos, &self.device).map_err(err)?;
