@@ -45,6 +45,9 @@ enum Cmd {
     Eval(vlnav_eval::EvalArgs),
     /// Per-stage latency of a mission from its distributed trace.
     Profile(vlnav_traces::ProfileArgs),
+    /// Measure the perception error model on the real NanoDet and MobileNetV2
+    /// (real photos, scaled, cut and pasted) and write the profile.
+    CalibratePerception(vlnav_eval::calibrate::CalibrateArgs),
 }
 
 /// Starts the built-in OTLP trace receiver (unless an endpoint is configured)
@@ -148,7 +151,13 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Eval(args) => {
             let _telemetry = telemetry::init("vlnav")?;
             let data = args.out.join("gateway");
-            let up_args = UpArgs { no_robot: true, ephemeral_ports: true, data_dir: data, ..UpArgs::default() };
+            let up_args = UpArgs {
+                no_robot: true,
+                ephemeral_ports: true,
+                data_dir: data,
+                perception: args.perception,
+                ..UpArgs::default()
+            };
             let stack = up(&up_args).await?;
             let report = vlnav_eval::run_eval(args, stack.gateway_uri()).await;
             stack.shutdown().await?;
@@ -156,6 +165,11 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Cmd::Profile(args) => {
             println!("{}", vlnav_traces::run_profile(args).await?);
+            Ok(())
+        }
+        Cmd::CalibratePerception(args) => {
+            let summary = tokio::task::spawn_blocking(move || vlnav_eval::calibrate::run(&args)).await??;
+            print!("{summary}");
             Ok(())
         }
     }

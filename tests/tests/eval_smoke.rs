@@ -24,6 +24,7 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         plots: 1,
         stall_timeout_s: 120.0,
         no_progress: true,
+        perception: vlnav_eval::PerceptionMode::Realistic,
     };
     let rerun = vlnav_eval::EvalArgs { out: again.path().to_path_buf(), jobs: 1, ..args.clone() };
     let report = vlnav_eval::run_eval(args, t.uri()).await.expect("the evaluation runs");

@@ -133,8 +133,15 @@ pub struct Instruction {
     /// True destination G_d (world); defaults to the last waypoint.
     #[serde(default)]
     pub destination: Option<[f64; 2]>,
-    /// Success radius d_s around the destination, metres.
+    /// Success radius around the destination, metres: the stopping
+    /// distance plus a slack.
     pub radius: f64,
+    /// Distance from the destination the instruction asks the robot to stop
+    /// at (the spoken distance from the landmark's surface plus its half
+    /// depth), metres; derived from the route's last leg when absent, 0 for
+    /// a point destination.
+    #[serde(default)]
+    pub stop_m: Option<f64>,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -212,6 +219,17 @@ impl Scenario {
 }
 
 impl Instruction {
+    /// The distance from the destination the robot is asked to stop at.
+    pub fn stop_distance(&self) -> f64 {
+        if let Some(d) = self.stop_m {
+            return d;
+        }
+        match self.route.last() {
+            Some(l) if l.find.is_some() && self.destination.is_none() => l.d_s.unwrap_or(0.0) + l.size,
+            _ => 0.0,
+        }
+    }
+
     pub fn destination(&self) -> Point2 {
         let d = self.destination.or_else(|| self.route.last().map(|l| l.at)).unwrap_or([0.0, 0.0]);
         Point2::new(d[0], d[1])
@@ -378,6 +396,14 @@ impl Suite {
                 }
                 if !(ins.radius.is_finite() && ins.radius > 0.0) {
                     return Err(invalid(at("radius"), "must be a positive distance in metres"));
+                }
+                if let Some(d) = ins.stop_m
+                    && !(d.is_finite() && d >= 0.0)
+                {
+                    return Err(invalid(at("stop_m"), "must be a distance in metres ≥ 0"));
+                }
+                if ins.stop_distance() > ins.radius {
+                    return Err(invalid(at("stop_m"), "the stopping distance must lie within the success radius"));
                 }
                 if ins.route.iter().any(|l| !l.at.iter().all(|v| v.is_finite())) {
                     return Err(invalid(at("route.at"), "every waypoint must be two finite numbers [x_m, y_m]"));

@@ -88,7 +88,7 @@ impl Backend {
                 })?;
                 Backend::YoloV8 { model: Box::new(model), nms_iou: opts.nms_iou, device: device_name(&dev) }
             }
-            BackendKind::Sim => Backend::Sim(opts.sim_config()),
+            BackendKind::Sim => Backend::Sim(opts.sim_config()?),
         })
     }
 
