@@ -47,6 +47,9 @@ enum Cmd {
     Profile(vlnav_traces::ProfileArgs),
     /// Run a detector on photos: one line per box (or JSON), annotated copies with --out.
     Detect(vlnav_detector::cli::DetectArgs),
+    /// Measure the perception error model on the real NanoDet and MobileNetV2
+    /// (real photos, scaled, cut and pasted) and write the profile.
+    CalibratePerception(vlnav_eval::calibrate::CalibrateArgs),
 }
 
 /// Starts the built-in OTLP trace receiver (unless an endpoint is configured)
@@ -150,7 +153,13 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Eval(args) => {
             let _telemetry = telemetry::init("vlnav")?;
             let data = args.out.join("gateway");
-            let up_args = UpArgs { no_robot: true, ephemeral_ports: true, data_dir: data, ..UpArgs::default() };
+            let up_args = UpArgs {
+                no_robot: true,
+                ephemeral_ports: true,
+                data_dir: data,
+                perception: args.perception,
+                ..UpArgs::default()
+            };
             let stack = up(&up_args).await?;
             let report = vlnav_eval::run_eval(args, stack.gateway_uri()).await;
             stack.shutdown().await?;
@@ -163,6 +172,11 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Detect(args) => {
             tokio::task::spawn_blocking(move || vlnav_detector::cli::run_detect(&args, &mut std::io::stdout()))
                 .await??;
+            Ok(())
+        }
+        Cmd::CalibratePerception(args) => {
+            let summary = tokio::task::spawn_blocking(move || vlnav_eval::calibrate::run(&args)).await??;
+            print!("{summary}");
             Ok(())
         }
     }

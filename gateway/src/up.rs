@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use tokio::net::TcpListener;
 use tokio::task::JoinSet;
+use vlnav_runtime::perception::PerceptionMode;
 use vlnav_runtime::{CancellationToken, ServerConfig, ServiceSet, ports};
 
 use crate::api::Gateway;
@@ -33,11 +34,12 @@ pub struct UpArgs {
     /// Run the simulated robot on the wall clock instead of in lockstep.
     #[arg(long)]
     pub realtime: bool,
-    /// Perception backends: `sim` reads the simulator's label images (default
-    /// with the simulated robot); `neural` runs NanoDet/MobileNetV2 and the
-    /// colour segmenter on the RGB frames.
-    #[arg(long, default_value = "sim")]
-    pub perception: String,
+    /// Perception of the simulated robot's frames: `realistic` (the detector
+    /// and ReID error model measured on the real networks, the real colour +
+    /// depth segmenter), `oracle` (ground truth from the label images, an
+    /// upper bound) or `neural` (the real NanoDet, MobileNetV2 and segmenter).
+    #[arg(long, env = "VLNAV_PERCEPTION", value_enum, default_value_t = PerceptionMode::Realistic)]
+    pub perception: PerceptionMode,
     /// Where missions (and the built-in trace receiver's spans) persist.
     #[arg(long, env = "VLNAV_DATA_DIR", default_value = ".vlnav")]
     pub data_dir: PathBuf,
@@ -53,7 +55,7 @@ impl Default for UpArgs {
             scenario: "demo".into(),
             seed: 1,
             realtime: false,
-            perception: "sim".into(),
+            perception: PerceptionMode::Realistic,
             data_dir: PathBuf::from(".vlnav"),
         }
     }
@@ -178,22 +180,54 @@ macro_rules! stage {
     }};
 }
 
+/// Sets the perception stages' backends for `mode`. Realistic keeps a sim
+/// profile given in the environment (`VLNAV_DETECTOR_SIM_PROFILE`,
+/// `VLNAV_REID_SIM_PROFILE`) unless it says `oracle`.
+pub fn apply_perception(
+    mode: PerceptionMode,
+    detector: &mut vlnav_detector::Options,
+    reid: &mut vlnav_reid::Options,
+    segmenter: &mut vlnav_segmenter::Options,
+) {
+    match mode {
+        PerceptionMode::Oracle => {
+            detector.backend = vlnav_detector::BackendKind::Sim;
+            detector.sim_profile = "oracle".into();
+            reid.backend = "sim".into();
+            reid.sim_profile = "oracle".into();
+            segmenter.backend = "sim".into();
+        }
+        PerceptionMode::Realistic => {
+            detector.backend = vlnav_detector::BackendKind::Sim;
+            if detector.sim_profile == "oracle" {
+                detector.sim_profile = "nanodet".into();
+            }
+            reid.backend = "sim".into();
+            if reid.sim_profile == "oracle" {
+                reid.sim_profile = "nanodet".into();
+            }
+            segmenter.backend = "colour".into();
+        }
+        PerceptionMode::Neural => {
+            detector.backend = vlnav_detector::BackendKind::Nanodet;
+            if reid.backend == "sim" {
+                reid.backend = "mobilenetv2".into();
+            }
+            segmenter.backend = "colour".into();
+        }
+    }
+}
+
 /// Starts the stack. Telemetry must already be initialised.
 pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
     let token = CancellationToken::new();
     let mut tasks = JoinSet::new();
     let cfg = ServerConfig::default();
     let eph = args.ephemeral_ports;
-    let sim = args.perception == "sim";
-
     let mut detector: vlnav_detector::Options = options_from_env()?;
     let mut reid: vlnav_reid::Options = options_from_env()?;
     let mut segmenter: vlnav_segmenter::Options = options_from_env()?;
-    if sim {
-        detector.backend = vlnav_detector::BackendKind::Sim;
-        reid.backend = "sim".into();
-        segmenter.backend = "sim".into();
-    }
+    apply_perception(args.perception, &mut detector, &mut reid, &mut segmenter);
     reid.data_dir = args.data_dir.join("reid");
     let builders: Vec<(&'static str, u16, Builder)> = vec![
         ("ingress", ports::INGRESS, stage!(vlnav_ingress, options_from_env::<vlnav_ingress::Options>()?, cfg)),

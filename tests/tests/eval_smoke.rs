@@ -24,13 +24,16 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         plots: 1,
         stall_timeout_s: 120.0,
         no_progress: true,
+        perception: vlnav_eval::PerceptionMode::Realistic,
     };
     let rerun = vlnav_eval::EvalArgs { out: again.path().to_path_buf(), jobs: 1, ..args.clone() };
     let report = vlnav_eval::run_eval(args, t.uri()).await.expect("the evaluation runs");
     assert_eq!(report.records.len(), 2, "one trial per scenario");
     for r in &report.records {
         assert!(r.frames > 0, "{}: the robot ran", r.scenario);
-        assert!(r.duration_s > 0.0 && r.path_length_m >= 0.0 && r.drift_m() >= 0.0 && r.final_error_m().is_finite());
+        assert!(
+            r.duration_s > 0.0 && r.path_length_m >= 0.0 && r.stop_error_m() >= 0.0 && r.final_error_m().is_finite()
+        );
     }
     for f in ["report.md", "summary.csv", "trials.csv"] {
         let text = std::fs::read_to_string(out.path().join(f)).unwrap();

@@ -47,6 +47,7 @@ fn tables(c: &mut Criterion) {
                 steps_total: 3,
                 destination: ins.destination(),
                 success_radius_m: ins.radius,
+                stop_distance_m: ins.stop_m.unwrap_or(0.0),
                 final_position: Point2::new(ins.destination().x + k, ins.destination().y),
                 path_length_m: 10.0 + k,
                 odom_path_length_m: 10.0,
@@ -63,7 +64,7 @@ fn tables(c: &mut Criterion) {
     c.bench_function("summarise + markdown + csv (1050 trials)", |b| {
         b.iter(|| {
             let sums = vlnav_eval::aggregate::summarise(black_box(&records));
-            let md = vlnav_eval::report::markdown(&refs, &sums, 1, 50);
+            let md = vlnav_eval::report::markdown(&refs, &sums, 1, 50, "realistic");
             let csv = vlnav_eval::report::trials_csv(&records).unwrap();
             black_box((md, csv))
         })

@@ -17,29 +17,42 @@ pub struct Summary {
     pub mode: Mode,
     pub trials: u32,
     pub successes: u32,
+    /// Success with the instructions' radii (slack below), %.
     pub success_pct: f64,
-    /// Mean share of mission time inside a no-go region, % (the paper's reading).
-    pub soft_collision_pct: f64,
-    /// Mean share of mission time touching structure, %.
-    pub hard_collision_pct: f64,
-    /// Share of trials with at least one soft / hard collision, %.
+    /// The slacks of the success radii beyond the asked distance, metres
+    /// (distinct values, ascending).
+    pub slack_m: Vec<f64>,
+    /// Success with |stopping error| ≤ 0.25 m, %.
+    pub success_025_pct: f64,
+    /// Share of trials with at least one soft / hard collision, % (primary).
     pub soft_trials_pct: f64,
     pub hard_trials_pct: f64,
+    /// Mean share of mission time inside a no-go region / touching something, % (secondary).
+    pub soft_time_pct: f64,
+    pub hard_time_pct: f64,
     /// Mean true path length, metres.
     pub path_m: f64,
-    /// The paper's Ē_drift and its population standard deviation, metres.
-    pub drift_m: f64,
-    pub drift_std_m: f64,
-    /// Mean ‖G_d − R_d‖, metres.
+    /// Trials that completed every step (the stopping error is over these).
+    pub completed: u32,
+    /// Mean |stopping error| and its population standard deviation, metres.
+    pub stop_abs_m: f64,
+    pub stop_abs_std_m: f64,
+    /// Mean signed stopping error (positive: farther than asked), metres.
+    pub stop_bias_m: f64,
+    /// Mean ‖G_d − R_d‖ over all trials, metres.
     pub final_error_m: f64,
     /// Mean mission time, sensor seconds.
     pub mission_s: f64,
     /// Simulated frames over all trials.
     pub frames: u64,
-    /// How the unsuccessful trials ended (outcome → count), including
-    /// `succeeded` for missions that finished outside the success radius.
+    /// Why the unsuccessful trials failed (cause → count): the outcome
+    /// (`failed`, `timed_out`, `clarification`, `error`), or for a mission
+    /// that completed, `hard_contact` or `outside_radius`.
     pub failures: BTreeMap<String, u32>,
 }
+
+/// The slack of "success at 0.25 m".
+pub const TIGHT_SLACK_M: f64 = 0.25;
 
 fn mean(xs: impl Iterator<Item = f64> + Clone) -> f64 {
     let n = xs.clone().count();
@@ -62,26 +75,39 @@ fn pct(part: u32, whole: u32) -> f64 {
 /// belong to that group and be sorted by trial.
 fn summarise_group(scenario: &str, mode: Mode, records: &[&TrialRecord]) -> Summary {
     let trials = records.len() as u32;
-    let successes = records.iter().filter(|r| r.success()).count() as u32;
-    let drifts: Vec<f64> = records.iter().map(|r| r.drift_m()).collect();
+    let count = |f: &dyn Fn(&TrialRecord) -> bool| records.iter().filter(|r| f(r)).count() as u32;
+    let successes = count(&|r| r.success());
+    let completed: Vec<&&TrialRecord> = records.iter().filter(|r| r.completed()).collect();
+    let stops: Vec<f64> = completed.iter().map(|r| r.stop_error_m().abs()).collect();
     let mut failures = BTreeMap::new();
     for r in records.iter().filter(|r| !r.success()) {
-        let key = if r.outcome == Outcome::Succeeded { "outside_radius" } else { r.outcome.as_str() };
+        let key = match r.outcome {
+            Outcome::Succeeded if r.completed() && r.contact.hard_events > 0 => "hard_contact",
+            Outcome::Succeeded => "outside_radius",
+            other => other.as_str(),
+        };
         *failures.entry(key.to_string()).or_insert(0) += 1;
     }
+    let mut slack_m: Vec<f64> = records.iter().map(|r| (r.slack_m() * 100.0).round() / 100.0).collect();
+    slack_m.sort_by(f64::total_cmp);
+    slack_m.dedup();
     Summary {
         scenario: scenario.to_string(),
         mode,
         trials,
         successes,
         success_pct: pct(successes, trials),
-        soft_collision_pct: 100.0 * mean(records.iter().map(|r| r.soft_time_share())),
-        hard_collision_pct: 100.0 * mean(records.iter().map(|r| r.hard_time_share())),
-        soft_trials_pct: pct(records.iter().filter(|r| r.contact.soft_events > 0).count() as u32, trials),
-        hard_trials_pct: pct(records.iter().filter(|r| r.contact.hard_events > 0).count() as u32, trials),
+        slack_m,
+        success_025_pct: pct(count(&|r| r.success_within(TIGHT_SLACK_M)), trials),
+        soft_trials_pct: pct(count(&|r| r.contact.soft_events > 0), trials),
+        hard_trials_pct: pct(count(&|r| r.contact.hard_events > 0), trials),
+        soft_time_pct: 100.0 * mean(records.iter().map(|r| r.soft_time_share())),
+        hard_time_pct: 100.0 * mean(records.iter().map(|r| r.hard_time_share())),
         path_m: mean(records.iter().map(|r| r.path_length_m)),
-        drift_m: mean(drifts.iter().copied()),
-        drift_std_m: population_std(&drifts),
+        completed: completed.len() as u32,
+        stop_abs_m: mean(stops.iter().copied()),
+        stop_abs_std_m: population_std(&stops),
+        stop_bias_m: mean(completed.iter().map(|r| r.stop_error_m())),
         final_error_m: mean(records.iter().map(|r| r.final_error_m())),
         mission_s: mean(records.iter().map(|r| r.duration_s)),
         frames: records.iter().map(|r| u64::from(r.frames)).sum(),
@@ -134,14 +160,20 @@ mod tests {
         assert_eq!(s.len(), 2);
         let hybrid = s.iter().find(|s| s.mode == Mode::Hybrid).unwrap();
         assert_eq!(hybrid.trials, 4);
+        // Trial 0 succeeds; trial 1 ends 2 m off (radius 1 m); 2 failed; 3 timed out.
         assert_eq!(hybrid.successes, 1);
         assert_eq!(hybrid.success_pct, 25.0);
-        // Drift terms 0, 1, 2, 0 → mean 0.75, population std sqrt(0.6875).
-        assert!((hybrid.drift_m - 0.75).abs() < 1e-12);
-        assert!((hybrid.drift_std_m - 0.6875f64.sqrt()).abs() < 1e-12);
+        assert_eq!(hybrid.slack_m, vec![0.5]);
+        // Trial 0 stopped on G_d, 0.5 m closer than asked: not within 0.25 m.
+        assert_eq!(hybrid.success_025_pct, 0.0);
+        // Stopping error over the two completed trials: |0 − 0.5| and |2 − 0.5|.
+        assert_eq!(hybrid.completed, 2);
+        assert!((hybrid.stop_abs_m - 1.0).abs() < 1e-12);
+        assert!((hybrid.stop_abs_std_m - 0.5).abs() < 1e-12);
+        assert!((hybrid.stop_bias_m - 0.5).abs() < 1e-12);
         // Time shares 10 %, 0, 0, 0 → 2.5 %; 0, 0, 5 %, 0 → 1.25 %.
-        assert!((hybrid.soft_collision_pct - 2.5).abs() < 1e-12);
-        assert!((hybrid.hard_collision_pct - 1.25).abs() < 1e-12);
+        assert!((hybrid.soft_time_pct - 2.5).abs() < 1e-12);
+        assert!((hybrid.hard_time_pct - 1.25).abs() < 1e-12);
         assert_eq!(hybrid.soft_trials_pct, 25.0);
         assert_eq!(hybrid.hard_trials_pct, 25.0);
         assert!((hybrid.path_m - 13.0).abs() < 1e-12);
@@ -149,6 +181,17 @@ mod tests {
         assert_eq!(hybrid.failures.get("outside_radius"), Some(&1));
         assert_eq!(hybrid.failures.get("failed"), Some(&1));
         assert_eq!(hybrid.failures.get("timed_out"), Some(&1));
+    }
+
+    #[test]
+    fn a_completed_trial_with_hard_contact_fails_as_such() {
+        let mut r = record(0, Outcome::Succeeded, (10.0, 0.5));
+        r.contact.hard_events = 1;
+        let s = summarise(&[r]);
+        assert_eq!(s[0].successes, 0);
+        assert_eq!(s[0].failures.get("hard_contact"), Some(&1));
+        assert_eq!(s[0].hard_trials_pct, 100.0);
+        assert_eq!(s[0].completed, 1, "its stopping error still counts");
     }
 
     #[test]

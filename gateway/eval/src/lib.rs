@@ -2,19 +2,22 @@
 //! missions through the real services (lockstep simulation, gRPC end to end)
 //! and reports the paper's metrics beside the paper's numbers.
 //!
-//! - [`metrics`]: per-trial definitions (success, drift, collisions);
+//! - [`metrics`]: per-trial definitions (success, stopping error, collisions);
 //! - [`aggregate`]: one summary per (scenario, mode);
 //! - [`report`]: Markdown and CSV tables with the paper's figures;
 //! - [`plot`]: top-down SVG trajectory plots;
 //! - [`suite`]: the scenario suite manifest and the trial plan;
 //! - [`seed`]: reproducible per-trial seeds;
 //! - [`paper`]: the paper's Tables IV and V;
-//! - [`runner`]: one trial through a gateway (edge agent + MissionService).
+//! - [`runner`]: one trial through a gateway (edge agent + MissionService);
+//! - [`calibrate`]: `vlnav calibrate-perception`, the perception error model
+//!   measured on the real detector and ReID embedder.
 //!
 //! The gateway's `vlnav eval` parses [`EvalArgs`] and calls [`run_eval`]
 //! with the URI of a running gateway (the all-in-one stack).
 
 pub mod aggregate;
+pub mod calibrate;
 pub mod metrics;
 pub mod paper;
 pub mod plot;
@@ -28,6 +31,8 @@ use std::time::Instant;
 
 use anyhow::Context;
 use futures::StreamExt;
+
+pub use vlnav_runtime::perception::PerceptionMode;
 
 use crate::aggregate::Summary;
 use crate::metrics::{Mode, TrialRecord};
@@ -80,6 +85,11 @@ pub struct EvalArgs {
     /// No progress bar.
     #[arg(long, env = "VLNAV_EVAL_NO_PROGRESS", default_value_t = false)]
     pub no_progress: bool,
+    /// Perception of the stack the trials run on: `realistic` (the measured
+    /// detector and ReID error model, the real segmenter), `oracle` (ground
+    /// truth, an upper bound) or `neural` (the real networks; slow on CPU).
+    #[arg(long, env = "VLNAV_PERCEPTION", value_enum, default_value_t = PerceptionMode::Realistic)]
+    pub perception: PerceptionMode,
 }
 
 impl Default for EvalArgs {
@@ -98,6 +108,7 @@ impl Default for EvalArgs {
             plots: 1,
             stall_timeout_s: 60.0,
             no_progress: false,
+            perception: PerceptionMode::Realistic,
         }
     }
 }
@@ -153,7 +164,8 @@ pub fn write_layouts(suite: &Suite, worlds: &[runner::LoadedWorld], dir: &Path) 
     Ok(out)
 }
 
-/// Runs the suite against the gateway at `gateway_uri` and writes the report.
+/// Runs the suite against the gateway at `gateway_uri` (whose stack runs
+/// `args.perception`, which the report names) and writes the report.
 pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<EvalReport> {
     anyhow::ensure!(args.jobs >= 1, "--jobs must be at least 1");
     anyhow::ensure!(
@@ -238,7 +250,7 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
     plots.extend(layouts);
 
     let summaries = aggregate::summarise(&records);
-    let markdown = report::markdown(&refs, &summaries, args.seed, trials);
+    let markdown = report::markdown(&refs, &summaries, args.seed, trials, args.perception.as_str());
     let summary_csv = report::summary_csv(&refs, &summaries)?;
     let trials_csv = report::trials_csv(&records)?;
     for (name, body) in [("report.md", &markdown), ("summary.csv", &summary_csv), ("trials.csv", &trials_csv)] {
@@ -286,8 +298,15 @@ mod tests {
         assert_eq!(cli.eval.scenarios, vec!["lab".to_string(), "corridor".to_string()]);
         assert_eq!(cli.eval.trials, Some(3));
         assert_eq!(cli.eval.frame_rate, 5.0);
+        assert_eq!(cli.eval.perception, PerceptionMode::Realistic, "realistic is the default");
         let e = Cli::try_parse_from(["vlnav-eval", "--mode", "sideways"]).err().unwrap().to_string();
         assert!(e.contains("geometric"), "{e}");
+        let oracle = Cli::try_parse_from(["vlnav-eval", "--perception", "oracle"]).unwrap();
+        assert_eq!(oracle.eval.perception, PerceptionMode::Oracle);
+        let e = Cli::try_parse_from(["vlnav-eval", "--perception", "perfect"]).err().unwrap().to_string();
+        for valid in ["oracle", "realistic", "neural"] {
+            assert!(e.contains(valid), "the refusal names {valid}: {e}");
+        }
     }
 
     #[test]

@@ -3,21 +3,24 @@
 //! expected destination.
 //!
 //! Definitions used throughout the harness:
+//! - **Stopping error** of one trial: ‖G_d − R_d‖ − d, where G_d is the true
+//!   destination (a landmark's centre, or a point), R_d the robot's true
+//!   final position and d the distance from G_d the instruction asks the
+//!   robot to stop at (the spoken distance from the landmark's surface plus
+//!   its half depth; 0 for a point). Positive: it stopped farther than
+//!   asked. No slack is added. A scenario's figure is the mean |error| ±
+//!   the population standard deviation of |error| over the trials that
+//!   completed every step (the paper's drift Ē ± σ).
 //! - **Success**: the mission ended `SUCCEEDED` with every step of its plan
-//!   completed, *and* the robot's true final position lies within the success
-//!   radius d_s of the true destination (‖G_d − R_d‖ ≤ d_s). A mission the
-//!   executor believes it finished but that ended elsewhere (odometry drift,
-//!   wrong target) is a failure.
-//! - **Drift error** of one trial: max(0, ‖G_d − R_d‖ − d_s); the scenario's
-//!   figure is the mean over its N trials (the paper's Ē_drift), with the
-//!   population standard deviation for the paper's "±".
-//! - **Soft / hard collision %**: the paper's Table V gives figures such as
-//!   0.3 % and 15.2 % over 50 trials, which cannot be shares of trials (one
-//!   trial of 50 is 2 %). We therefore read them as a per-trial *rate*: the
-//!   share of the mission's sensor time during which the footprint is inside a
-//!   semantic no-go region (soft) or touching physical structure (hard),
-//!   averaged over trials. The share of trials with at least one such event is
-//!   reported beside it.
+//!   completed, the robot never touched anything hard (a trial with a hard
+//!   collision is not a success), *and* its true final position lies within
+//!   the instruction's success radius of the true destination (‖G_d − R_d‖ ≤
+//!   r, r = d + a slack the table states, 0.3–0.75 m). Success at 0.25 m
+//!   holds the same trial to |stopping error| ≤ 0.25 m.
+//! - **Collisions**: the share of trials with at least one soft event (the
+//!   footprint entered a semantic no-go region) / hard event (it touched
+//!   structure, an object or a person) is the primary figure. The share of
+//!   mission time in contact is reported beside it, labelled as such.
 //! - **Path length**: the true distance driven (simulation ground truth),
 //!   averaged over all trials of the scenario.
 //! - **Mission time**: sensor seconds from the first executed frame to the end
@@ -212,9 +215,11 @@ pub struct TrialRecord {
     pub reason: String,
     pub steps_completed: u32,
     pub steps_total: u32,
-    /// True destination G_d (world) and success radius d_s.
+    /// True destination G_d (world) and success radius r (d + slack).
     pub destination: Point2,
     pub success_radius_m: f64,
+    /// Distance d from G_d the instruction asks the robot to stop at, metres.
+    pub stop_distance_m: f64,
     /// True final position R_d (world).
     pub final_position: Point2,
     /// True distance driven, metres.
@@ -234,17 +239,29 @@ impl TrialRecord {
         self.destination.distance(self.final_position)
     }
 
-    /// The paper's per-trial drift term: max(0, ‖G_d − R_d‖ − d_s).
-    pub fn drift_m(&self) -> f64 {
-        (self.final_error_m() - self.success_radius_m).max(0.0)
+    /// Stopping error ‖G_d − R_d‖ − d, signed (positive: farther than asked).
+    pub fn stop_error_m(&self) -> f64 {
+        self.final_error_m() - self.stop_distance_m
     }
 
-    /// Every step completed and the true final position within d_s.
+    /// The slack the success radius allows beyond the asked distance, metres.
+    pub fn slack_m(&self) -> f64 {
+        self.success_radius_m - self.stop_distance_m
+    }
+
+    /// The executor finished every step of a non-empty plan.
+    pub fn completed(&self) -> bool {
+        self.outcome == Outcome::Succeeded && self.steps_total > 0 && self.steps_completed == self.steps_total
+    }
+
+    /// Completed, no hard contact, and the true final position within the success radius.
     pub fn success(&self) -> bool {
-        self.outcome == Outcome::Succeeded
-            && self.steps_total > 0
-            && self.steps_completed == self.steps_total
-            && self.final_error_m() <= self.success_radius_m
+        self.completed() && self.contact.hard_events == 0 && self.final_error_m() <= self.success_radius_m
+    }
+
+    /// Completed, no hard contact, and |stopping error| ≤ `slack`.
+    pub fn success_within(&self, slack: f64) -> bool {
+        self.completed() && self.contact.hard_events == 0 && self.stop_error_m().abs() <= slack
     }
 
     /// Share of the mission's sensor time in hard contact, 0–1.
@@ -279,6 +296,7 @@ pub(crate) mod tests {
             steps_total: 3,
             destination: Point2::new(10.0, 0.0),
             success_radius_m: 1.0,
+            stop_distance_m: 0.5,
             final_position: Point2::new(final_xy.0, final_xy.1),
             path_length_m: 12.0,
             odom_path_length_m: 12.1,
@@ -308,13 +326,27 @@ pub(crate) mod tests {
     }
 
     #[test]
-    fn drift_is_the_papers_formula() {
-        // ‖G − R‖ = 1.5, d_s = 1 → 0.5.
+    fn the_stopping_error_is_measured_against_the_asked_distance_without_slack() {
+        // ‖G − R‖ = 1.5, asked 0.5 → 1.0 too far.
         let r = record(0, Outcome::Succeeded, (10.0, 1.5));
         assert!((r.final_error_m() - 1.5).abs() < 1e-12);
-        assert!((r.drift_m() - 0.5).abs() < 1e-12);
-        // Inside the radius the term is zero, not negative.
-        assert_eq!(record(0, Outcome::Succeeded, (10.3, 0.4)).drift_m(), 0.0);
+        assert!((r.stop_error_m() - 1.0).abs() < 1e-12);
+        // Closer than asked is negative.
+        assert!((record(0, Outcome::Succeeded, (10.0, 0.2)).stop_error_m() + 0.3).abs() < 1e-12);
+        assert!((r.slack_m() - 0.5).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_hard_collision_is_not_a_success_and_the_tight_slack_is_stricter() {
+        let mut r = record(0, Outcome::Succeeded, (10.0, 0.9));
+        assert!(r.success(), "0.9 m from G_d, radius 1 m");
+        assert!(!r.success_within(0.25), "0.4 m farther than the asked 0.5 m");
+        assert!(record(0, Outcome::Succeeded, (10.0, 0.7)).success_within(0.25));
+        r.contact.hard_events = 1;
+        assert!(!r.success() && !r.success_within(1.0), "a trial with hard contact is not a success");
+        r.contact.hard_events = 0;
+        r.contact.soft_events = 3;
+        assert!(r.success(), "soft events do not fail a trial");
     }
 
     fn sample(stamp: f64, hard: bool, soft: bool) -> TruthSample {

@@ -45,14 +45,19 @@ fn pair(ours: f64, paper: Option<f64>, decimals: usize) -> String {
     }
 }
 
+fn slack_text(s: &Summary) -> String {
+    let v: Vec<String> = s.slack_m.iter().map(|x| format!("{x:.2}")).collect();
+    if v.is_empty() { "—".into() } else { v.join("/") }
+}
+
 /// Table V analogue: one row per scenario run in hybrid mode, every cell
 /// "ours (paper)".
 pub fn table_v_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String {
     let mut out = String::new();
     out.push_str(
-        "| Environment (paper row) | Trials | Success % | Soft collision % | Hard collision % | Avg. path (m) | Drift error (m) | Mission time (s) | Trials with soft / hard collision % |\n",
+        "| Environment (paper row) | Trials | Success % | Slack (m) | Success % at 0.25 m | Trials with soft collision % | Trials with hard collision % | Avg. path (m) | Stopping error (m) | Mission time (s) | Time in soft / hard contact % |\n",
     );
-    out.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    out.push_str("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
     for sc in scenarios {
         let Some(s) = find(summaries, &sc.name, Mode::Hybrid) else { continue };
         let p = sc.paper_table_v.as_deref().and_then(paper::table_v);
@@ -60,23 +65,27 @@ pub fn table_v_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> Str
             Some(p) => format!("{} ({})", sc.title, p.environment),
             None => sc.title.clone(),
         };
-        let drift = match p {
-            Some(p) => format!("{:.2} ± {:.2} ({:.2} ± {:.2})", s.drift_m, s.drift_std_m, p.drift_m, p.drift_std_m),
-            None => format!("{:.2} ± {:.2} (—)", s.drift_m, s.drift_std_m),
+        let stop = match p {
+            Some(p) => {
+                format!("{:.2} ± {:.2} ({:.2} ± {:.2})", s.stop_abs_m, s.stop_abs_std_m, p.drift_m, p.drift_std_m)
+            }
+            None => format!("{:.2} ± {:.2} (—)", s.stop_abs_m, s.stop_abs_std_m),
         };
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} | {:.0} / {:.0} |",
+            "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {:.1} | {:.1} / {:.1} |",
             row_name,
             s.trials,
             pair(s.success_pct, p.map(|p| p.success_pct), 1),
-            pair(s.soft_collision_pct, p.map(|p| p.soft_collision_pct), 1),
-            pair(s.hard_collision_pct, p.map(|p| p.hard_collision_pct), 1),
+            slack_text(s),
+            s.success_025_pct,
+            pair(s.soft_trials_pct, p.map(|p| p.soft_collision_pct), 1),
+            pair(s.hard_trials_pct, p.map(|p| p.hard_collision_pct), 1),
             pair(s.path_m, p.map(|p| p.path_m), 1),
-            drift,
+            stop,
             s.mission_s,
-            s.soft_trials_pct,
-            s.hard_trials_pct,
+            s.soft_time_pct,
+            s.hard_time_pct,
         );
     }
     out
@@ -117,26 +126,30 @@ pub fn table_iv_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> St
 /// Every (scenario, mode) with every figure, ours only.
 pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String {
     let mut out = String::new();
-    out.push_str("| Scenario | Mode | Trials | Success % | Soft % time | Hard % time | Soft % trials | Hard % trials | Path (m) | Drift (m) | Final error (m) | Time (s) | Frames | Failures |\n");
-    out.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n");
+    out.push_str("| Scenario | Mode | Trials | Success % | Slack (m) | Success % at 0.25 m | Soft % trials | Hard % trials | Soft % time | Hard % time | Path (m) | Completed | Stopping error (m) | Bias (m) | Final error (m) | Time (s) | Frames | Failures |\n");
+    out.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n");
     for sc in scenarios {
         for mode in Mode::ALL {
             let Some(s) = find(summaries, &sc.name, mode) else { continue };
             let failures: Vec<String> = s.failures.iter().map(|(k, v)| format!("{k} {v}")).collect();
             let _ = writeln!(
                 out,
-                "| {} | {} | {} | {:.1} | {:.1} | {:.1} | {:.0} | {:.0} | {:.1} | {:.2} ± {:.2} | {:.2} | {:.1} | {} | {} |",
+                "| {} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {:.2} ± {:.2} | {:+.2} | {:.2} | {:.1} | {} | {} |",
                 sc.title,
                 mode,
                 s.trials,
                 s.success_pct,
-                s.soft_collision_pct,
-                s.hard_collision_pct,
+                slack_text(s),
+                s.success_025_pct,
                 s.soft_trials_pct,
                 s.hard_trials_pct,
+                s.soft_time_pct,
+                s.hard_time_pct,
                 s.path_m,
-                s.drift_m,
-                s.drift_std_m,
+                s.completed,
+                s.stop_abs_m,
+                s.stop_abs_std_m,
+                s.stop_bias_m,
                 s.final_error_m,
                 s.mission_s,
                 s.frames,
@@ -148,18 +161,24 @@ pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String
 }
 
 /// The whole Markdown report (no wall-clock figures: those go to the run log).
-pub fn markdown(scenarios: &[ScenarioRef], summaries: &[Summary], master_seed: u64, trials: u32) -> String {
+pub fn markdown(
+    scenarios: &[ScenarioRef],
+    summaries: &[Summary],
+    master_seed: u64,
+    trials: u32,
+    perception: &str,
+) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "# vlnav evaluation\n");
     let _ = writeln!(
         out,
-        "Master seed {master_seed}, {trials} trials per scenario and mode. Cells read \"ours (paper)\".\n"
+        "Perception `{perception}`, master seed {master_seed}, {trials} trials per scenario and mode. Cells read \"ours (paper)\".\n"
     );
     let v = table_v_markdown(scenarios, summaries);
     if v.lines().count() > 2 {
         let _ = writeln!(
             out,
-            "## Table V — success, collisions, path and drift per environment (hybrid instructions)\n\n{v}"
+            "## Table V — success, collisions, path and stopping error per environment (hybrid instructions)\n\n{v}"
         );
     }
     let iv = table_iv_markdown(scenarios, summaries);
@@ -168,10 +187,13 @@ pub fn markdown(scenarios: &[ScenarioRef], summaries: &[Summary], master_seed: u
     }
     let _ = writeln!(out, "## Every scenario and mode\n\n{}", full_markdown(scenarios, summaries));
     out.push_str(
-        "Success: the mission ended SUCCEEDED with every step done and the true final position within d_s of the true \
-destination. Soft / hard collision %: mean share of mission time inside a no-go region / touching structure \
-(the paper's figures are rates, not shares of trials); \"% trials\" counts trials with at least one such event. \
-Drift: mean of max(0, ‖G_d − R_d‖ − d_s) ± population standard deviation. Time: sensor seconds.\n",
+        "Success: the mission ended SUCCEEDED with every step done, no hard contact, and the true final position \
+within the success radius r of the true destination G_d; r is the asked stopping distance d plus the slack shown. \
+Success at 0.25 m: the same with |stopping error| ≤ 0.25 m. Stopping error: ‖G_d − R_d‖ − d with no slack, \
+mean |error| ± population standard deviation over the trials that completed every step (bias: the signed mean, \
+positive = stopped farther than asked). Collisions: share of trials with at least one soft event (entered a no-go \
+region) / hard event (touched structure, an object or a person), beside the paper's soft / hard collision %; \
+the share of mission time in contact is secondary. Time: sensor seconds.\n",
     );
     out
 }
@@ -190,13 +212,17 @@ pub fn summary_csv(scenarios: &[ScenarioRef], summaries: &[Summary]) -> anyhow::
         "trials",
         "successes",
         "success_pct",
-        "soft_collision_pct",
-        "hard_collision_pct",
+        "slack_m",
+        "success_025_pct",
         "soft_trials_pct",
         "hard_trials_pct",
+        "soft_time_pct",
+        "hard_time_pct",
         "path_m",
-        "drift_m",
-        "drift_std_m",
+        "completed",
+        "stop_abs_m",
+        "stop_abs_std_m",
+        "stop_bias_m",
         "final_error_m",
         "mission_s",
         "frames",
@@ -221,13 +247,17 @@ pub fn summary_csv(scenarios: &[ScenarioRef], summaries: &[Summary]) -> anyhow::
                 s.trials.to_string(),
                 s.successes.to_string(),
                 format!("{:.2}", s.success_pct),
-                format!("{:.3}", s.soft_collision_pct),
-                format!("{:.3}", s.hard_collision_pct),
+                slack_text(s),
+                format!("{:.2}", s.success_025_pct),
                 format!("{:.2}", s.soft_trials_pct),
                 format!("{:.2}", s.hard_trials_pct),
+                format!("{:.3}", s.soft_time_pct),
+                format!("{:.3}", s.hard_time_pct),
                 format!("{:.3}", s.path_m),
-                format!("{:.4}", s.drift_m),
-                format!("{:.4}", s.drift_std_m),
+                s.completed.to_string(),
+                format!("{:.4}", s.stop_abs_m),
+                format!("{:.4}", s.stop_abs_std_m),
+                format!("{:.4}", s.stop_bias_m),
                 format!("{:.4}", s.final_error_m),
                 format!("{:.2}", s.mission_s),
                 s.frames.to_string(),
@@ -261,10 +291,12 @@ pub fn trials_csv(records: &[TrialRecord]) -> anyhow::Result<String> {
         "destination_x",
         "destination_y",
         "success_radius_m",
+        "stop_distance_m",
         "final_x",
         "final_y",
         "final_error_m",
-        "drift_m",
+        "stop_error_m",
+        "success_025",
         "path_length_m",
         "odom_path_length_m",
         "duration_s",
@@ -290,10 +322,12 @@ pub fn trials_csv(records: &[TrialRecord]) -> anyhow::Result<String> {
             format!("{:.4}", r.destination.x),
             format!("{:.4}", r.destination.y),
             format!("{:.3}", r.success_radius_m),
+            format!("{:.3}", r.stop_distance_m),
             format!("{:.4}", r.final_position.x),
             format!("{:.4}", r.final_position.y),
             format!("{:.4}", r.final_error_m()),
-            format!("{:.4}", r.drift_m()),
+            format!("{:.4}", r.stop_error_m()),
+            r.success_within(crate::aggregate::TIGHT_SLACK_M).to_string(),
             format!("{:.4}", r.path_length_m),
             format!("{:.4}", r.odom_path_length_m),
             format!("{:.3}", r.duration_s),
@@ -352,6 +386,9 @@ mod tests {
         assert!(row.contains("50.0 (100.0)"), "{row}");
         assert!(row.contains("(12.4)"), "{row}");
         assert!(row.contains("(0.03 ± 0.01)"), "{row}");
+        // The slack is stated and the collision cells are shares of trials beside the paper's.
+        assert!(row.contains("| 0.50 |"), "{row}");
+        assert!(row.contains("0.0 (10.0)"), "{row}");
         // The corridor ran in hybrid mode too but stands for no Table V row: listed without paper figures.
         let corridor = md.lines().find(|l| l.starts_with("| Featureless corridor")).expect(&md);
         assert!(corridor.contains("100.0 (—)"), "{corridor}");
@@ -373,7 +410,7 @@ mod tests {
         let lines: Vec<&str> = csv.lines().collect();
         assert_eq!(lines.len(), 4, "{csv}");
         assert!(lines[0].starts_with("scenario,title,mode"));
-        assert!(lines[1].starts_with("indoor,Indoor office,hybrid,2,1,50.00"), "{}", lines[1]);
+        assert!(lines[1].starts_with("indoor,Indoor office,hybrid,2,1,50.00,0.50,"), "{}", lines[1]);
         assert!(lines[1].ends_with("Indoor,100,10,0,12.4,0.03"), "{}", lines[1]);
         assert!(lines[2].starts_with("corridor,Featureless corridor,geometric"), "{}", lines[2]);
         assert!(lines[2].ends_with("Featureless Corridor,92,,,,"), "{}", lines[2]);
@@ -384,18 +421,19 @@ mod tests {
         let rs = records();
         let mut rev = rs.clone();
         rev.reverse();
-        let a = markdown(&refs(), &summarise(&rs), 7, 2);
-        let b = markdown(&refs(), &summarise(&rev), 7, 2);
+        let a = markdown(&refs(), &summarise(&rs), 7, 2, "realistic");
+        let b = markdown(&refs(), &summarise(&rev), 7, 2, "realistic");
+        assert!(a.contains("Perception `realistic`"));
         assert_eq!(a, b);
         assert_eq!(trials_csv(&rs).unwrap(), trials_csv(&rev).unwrap());
     }
 
     #[test]
-    fn the_trial_csv_recomputes_success_and_drift() {
+    fn the_trial_csv_recomputes_success_and_the_stopping_error() {
         let csv = trials_csv(&records()).unwrap();
         let failed = csv.lines().find(|l| l.starts_with("indoor,hybrid,1,")).unwrap();
-        // ‖(10,0) − (5,0)‖ = 5, d_s = 1 → drift 4.
+        // ‖(10,0) − (5,0)‖ = 5, asked 0.5 → 4.5 too far.
         assert!(failed.contains(",failed,false,"), "{failed}");
-        assert!(failed.contains(",5.0000,4.0000,"), "{failed}");
+        assert!(failed.contains(",5.0000,4.5000,false,"), "{failed}");
     }
 }

@@ -144,6 +144,7 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
         steps_total: 0,
         destination: instruction.destination(),
         success_radius_m: instruction.radius,
+        stop_distance_m: instruction.stop_distance(&loaded.world),
         final_position: start.position().into(),
         path_length_m: 0.0,
         odom_path_length_m: 0.0,

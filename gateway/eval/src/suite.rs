@@ -133,8 +133,15 @@ pub struct Instruction {
     /// True destination G_d (world); defaults to the last waypoint.
     #[serde(default)]
     pub destination: Option<[f64; 2]>,
-    /// Success radius d_s around the destination, metres.
+    /// Success radius around the destination, metres: the stopping
+    /// distance plus a slack.
     pub radius: f64,
+    /// Distance from the destination the instruction asks the robot to stop
+    /// at (the spoken distance from the landmark's surface plus its half
+    /// depth), metres; derived from the route's last leg when absent, 0 for
+    /// a point destination.
+    #[serde(default)]
+    pub stop_m: Option<f64>,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -211,7 +218,36 @@ impl Scenario {
     }
 }
 
+/// The slack a landmark destination's success radius adds to the stopping
+/// distance (spoken distance + half depth), metres.
+pub const LANDMARK_SLACK_M: f64 = 0.5;
+
 impl Instruction {
+    /// The distance from the destination the robot is asked to stop at:
+    /// `stop_m` when the file gives it; for a route ending at a landmark, the
+    /// leg's spoken distance plus the landmark's half size; for an explicit
+    /// destination at a landmark's centre (a detectable object of `world`
+    /// within 0.1 m), the radius less the suite's landmark slack
+    /// ([`LANDMARK_SLACK_M`], the convention in `scenarios/suite.toml`'s
+    /// header); otherwise 0 (a point destination).
+    pub fn stop_distance(&self, world: &vlnav_sim::world::World) -> f64 {
+        if let Some(d) = self.stop_m {
+            return d;
+        }
+        match (self.route.last(), self.destination) {
+            (Some(l), None) if l.find.is_some() => l.d_s.unwrap_or(0.0) + l.size,
+            (_, Some(d)) => {
+                let at = vlnav_sim::geometry::Vec2::new(d[0], d[1]);
+                let landmark =
+                    world.entities.iter().filter(|e| e.class_id >= 0).any(|e| {
+                        world.find_objects(e.class_id, None, 0.0).iter().any(|(_, c)| c.sub(at).norm() <= 0.1)
+                    });
+                if landmark { (self.radius - LANDMARK_SLACK_M).max(0.0) } else { 0.0 }
+            }
+            _ => 0.0,
+        }
+    }
+
     pub fn destination(&self) -> Point2 {
         let d = self.destination.or_else(|| self.route.last().map(|l| l.at)).unwrap_or([0.0, 0.0]);
         Point2::new(d[0], d[1])
@@ -379,6 +415,14 @@ impl Suite {
                 if !(ins.radius.is_finite() && ins.radius > 0.0) {
                     return Err(invalid(at("radius"), "must be a positive distance in metres"));
                 }
+                if let Some(d) = ins.stop_m
+                    && !(d.is_finite() && d >= 0.0)
+                {
+                    return Err(invalid(at("stop_m"), "must be a distance in metres ≥ 0"));
+                }
+                if ins.stop_m.is_some_and(|d| d > ins.radius) {
+                    return Err(invalid(at("stop_m"), "the stopping distance must lie within the success radius"));
+                }
                 if ins.route.iter().any(|l| !l.at.iter().all(|v| v.is_finite())) {
                     return Err(invalid(at("route.at"), "every waypoint must be two finite numbers [x_m, y_m]"));
                 }
@@ -530,6 +574,29 @@ route = [{ at = [10.0, 0.0] }, { at = [12.0, 3.0], find = "chair" }]
         assert_eq!(c.modes(), vec![Mode::Geometric, Mode::Visual, Mode::Hybrid]);
         assert_eq!(c.world_path(&s), PathBuf::from("/suite/worlds/corridor.toml"));
         assert_eq!(c.instructions[0].destination(), Point2::new(12.0, 3.0));
+    }
+
+    #[test]
+    fn stopping_distances_follow_the_suite_convention() {
+        // Landmark destinations stop the radius less the 0.5 m slack from the
+        // landmark's centre; point destinations at it; routes ending at a
+        // landmark at d_s + size.
+        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/suite.toml");
+        let suite = Suite::load(&path).unwrap();
+        let stop = |scenario: &str, id: &str| {
+            let sc = suite.scenarios.iter().find(|s| s.name == scenario).unwrap();
+            let world = crate::runner::load_world(&sc.world_path(&suite)).unwrap().world;
+            let ins = sc.instructions.iter().find(|i| i.id == id).unwrap();
+            (ins.stop_distance(&world) * 100.0).round() / 100.0
+        };
+        assert_eq!(stop("indoor", "chair-then-plant"), 1.25);
+        assert_eq!(stop("campus", "bench"), 2.3);
+        assert_eq!(stop("garage", "motorcycle"), 2.5);
+        assert_eq!(stop("forest", "hiker-then-clearing"), 0.0);
+        assert_eq!(stop("corridor", "hybrid"), 0.0);
+        let precise = suite.scenarios.iter().find(|s| s.name == "precise").unwrap();
+        let leg = precise.instructions[0].route.last().unwrap();
+        assert_eq!(stop("precise", "hybrid"), ((leg.d_s.unwrap_or(0.0) + leg.size) * 100.0).round() / 100.0);
     }
 
     #[test]

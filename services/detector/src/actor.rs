@@ -92,7 +92,7 @@ impl Backend {
                 let classes = yolo_classes(opts, &path, model.num_classes())?;
                 Backend::YoloV8 { model: Box::new(model), classes, nms_iou: opts.nms_iou, device: device_name(&dev) }
             }
-            BackendKind::Sim => Backend::Sim(opts.sim_config()),
+            BackendKind::Sim => Backend::Sim(opts.sim_config()?),
         })
     }
 

@@ -106,9 +106,17 @@ pub fn labels_input(frame: &v1::RgbdFrame) -> Result<Input, ServiceError> {
         }
         _ => Vec::new(),
     };
-    let instances =
-        labels.instances.iter().map(|i| Instance { instance_id: i.instance_id, class_id: i.class_id }).collect();
-    Ok(Input::Labels(LabeledFrame { seq: frame.seq, width, height, instance_ids, instances, depth_mm }))
+    let instances = labels
+        .instances
+        .iter()
+        .map(|i| Instance {
+            instance_id: i.instance_id,
+            class_id: i.class_id,
+            visible_fraction: if i.visible_fraction > 0.0 { i.visible_fraction.min(1.0) } else { 1.0 },
+        })
+        .collect();
+    let robot = crate::error_model::hash_str(&frame.robot_id);
+    Ok(Input::Labels(LabeledFrame { robot, seq: frame.seq, width, height, instance_ids, instances, depth_mm }))
 }
 
 fn to_proto(l: &Labeled) -> v1::BoundingBox {

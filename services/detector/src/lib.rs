@@ -25,6 +25,8 @@ pub mod classes;
 pub mod cli;
 pub mod conv;
 pub mod detection;
+/// The measured perception error model (shared with the ReID service).
+pub use vlnav_runtime::perception as error_model;
 pub mod graph;
 pub mod grpc;
 pub mod nanodet;
@@ -151,6 +153,17 @@ pub struct Options {
     /// Simulation: seed of misses and jitter (with frame seq and instance id).
     #[arg(id = "detector_sim_seed", long = "detector-sim-seed", env = "VLNAV_DETECTOR_SIM_SEED", default_value_t = 0)]
     pub sim_seed: u64,
+    /// Simulation: the perception error model. `nanodet` (the shipped profile
+    /// measured on the real NanoDet, deploy/perception/nanodet-realistic.toml),
+    /// `oracle` (every visible instance, exact boxes) or a profile file written
+    /// by `vlnav calibrate-perception`.
+    #[arg(
+        id = "detector_sim_profile",
+        long = "detector-sim-profile",
+        env = "VLNAV_DETECTOR_SIM_PROFILE",
+        default_value = "nanodet"
+    )]
+    pub sim_profile: String,
 }
 
 impl Default for Options {
@@ -171,6 +184,7 @@ impl Default for Options {
             sim_miss_rate: 0.0,
             sim_jitter_px: 0.0,
             sim_seed: 0,
+            sim_profile: "nanodet".into(),
         }
     }
 }
@@ -199,15 +213,17 @@ impl Options {
         self.yolo_names.clone().or_else(|| classes::ClassMap::file_next_to(&self.yolo_weights_path()))
     }
 
-    pub fn sim_config(&self) -> sim::SimConfig {
-        sim::SimConfig {
+    /// The simulation backend's settings, with its error model loaded.
+    pub fn sim_config(&self) -> anyhow::Result<sim::SimConfig> {
+        Ok(sim::SimConfig {
             min_pixels: self.sim_min_pixels,
             max_range_m: self.sim_max_range_m,
             miss_rate: self.sim_miss_rate,
             jitter_px: self.sim_jitter_px,
             seed: self.sim_seed,
             score: 0.9,
-        }
+            model: load_profile(&self.sim_profile)?.map(|p| std::sync::Arc::new(p.detector)),
+        })
     }
 
     fn validate(&self) -> anyhow::Result<()> {
@@ -228,6 +244,22 @@ impl Options {
             "--detector-sim-jitter-px ≥ 0 and --detector-sim-max-range-m > 0"
         );
         Ok(())
+    }
+}
+
+/// A perception profile by name: `oracle` (none), `nanodet` (shipped) or a file.
+pub fn load_profile(name: &str) -> anyhow::Result<Option<error_model::Profile>> {
+    match name {
+        "oracle" => Ok(None),
+        "nanodet" | "nanodet-realistic" => Ok(Some(error_model::Profile::nanodet())),
+        path => {
+            let text = std::fs::read_to_string(path).map_err(|e| {
+                anyhow::anyhow!(
+                    "--detector-sim-profile {path}: {e} (use `nanodet`, `oracle` or a file written by `vlnav calibrate-perception`)"
+                )
+            })?;
+            Ok(Some(error_model::Profile::parse(&text).map_err(|e| anyhow::anyhow!("{path}: {e}"))?))
+        }
     }
 }
 

@@ -1,26 +1,41 @@
 //! The simulation backend: detections read from the simulator's label image
-//! (per-pixel instance ids) instead of a network. An instance is detected
-//! when its class is a COCO class, enough of it is visible (occlusion is
-//! already in the label image: hidden pixels belong to the occluder) and it is
-//! within range by its median depth. Optional misses and box jitter are
-//! deterministic functions of (seed, frame seq, instance id), so simulated
-//! runs reproduce exactly.
+//! (per-pixel instance ids) instead of a network.
+//!
+//! Two behaviours:
+//! - **oracle** (no error model): an instance is detected when its class is
+//!   a COCO class, enough of it is visible (occlusion is already in the label
+//!   image: hidden pixels belong to the occluder) and it is within range by
+//!   its median depth; optional flat misses and box jitter;
+//! - **realistic** (an [`error_model::DetectorModel`], measured on the real
+//!   detector): each instance is found with the recall its apparent height
+//!   and visible fraction earn, may be reported as a confusable class, its
+//!   box jitters, its confidence is drawn from the measured distribution,
+//!   and false positives appear at the measured rate.
+//!
+//! Every random choice is a deterministic function of (seed, robot, frame
+//! seq, instance id), so simulated runs reproduce exactly.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
 use crate::detection::{DetectFilter, Detection};
+use crate::error_model::{DetectorModel, Draws, REFERENCE_HEIGHT_PX, from_deciles};
 
 /// One entry of the label image's instance table.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Instance {
     pub instance_id: u32,
     /// COCO-80 class id, or −1 for structure and floor.
     pub class_id: i32,
+    /// Share of the instance's unoccluded, untruncated projection in view (0–1).
+    pub visible_fraction: f32,
 }
 
 /// A label image with its aligned depth.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LabeledFrame {
+    /// Hash of the robot id ([`crate::error_model::hash_str`]): robots draw independent errors.
+    pub robot: u64,
     pub seq: u64,
     pub width: u32,
     pub height: u32,
@@ -63,29 +78,20 @@ pub struct SimConfig {
     pub jitter_px: f32,
     /// Seed of the misses and the jitter.
     pub seed: u64,
-    /// Confidence reported for every simulated detection.
+    /// Confidence reported for every simulated detection (oracle).
     pub score: f32,
+    /// The measured error model (realistic); `None` is the oracle.
+    pub model: Option<Arc<DetectorModel>>,
 }
 
 impl Default for SimConfig {
     fn default() -> Self {
-        Self { min_pixels: 50, max_range_m: 10.0, miss_rate: 0.0, jitter_px: 0.0, seed: 0, score: 0.9 }
+        Self { min_pixels: 50, max_range_m: 10.0, miss_rate: 0.0, jitter_px: 0.0, seed: 0, score: 0.9, model: None }
     }
 }
 
-/// SplitMix64: a good 64-bit mix for counter-based random numbers.
-fn splitmix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9e37_79b9_7f4a_7c15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    z ^ (z >> 31)
-}
-
-/// The `k`-th uniform number in [0, 1) for (seed, seq, instance).
-fn uniform(seed: u64, seq: u64, instance: u32, k: u64) -> f32 {
-    let h = splitmix(splitmix(splitmix(seed) ^ seq) ^ ((instance as u64) << 8 | k));
-    (h >> 40) as f32 / (1u64 << 24) as f32
-}
+/// Item numbers of false positives in the draws (instance ids are u16).
+const FP_ITEM: u64 = 1 << 32;
 
 #[derive(Default)]
 struct Extent {
@@ -99,6 +105,9 @@ struct Extent {
 
 /// Detections in a labelled frame, by descending score then instance id.
 pub fn detect(frame: &LabeledFrame, cfg: &SimConfig, filter: &DetectFilter) -> Vec<Detection> {
+    if let Some(model) = &cfg.model {
+        return detect_realistic(frame, cfg, model, filter);
+    }
     let classes: HashMap<u32, i32> = frame
         .instances
         .iter()
@@ -109,6 +118,51 @@ pub fn detect(frame: &LabeledFrame, cfg: &SimConfig, filter: &DetectFilter) -> V
         return Vec::new();
     }
     let has_depth = !frame.depth_mm.is_empty();
+    let mut extents = extents_of(frame, &classes, has_depth);
+    let mut ids: Vec<u32> = extents.keys().copied().collect();
+    ids.sort_unstable();
+    let (fw, fh) = (frame.width as f32, frame.height as f32);
+    let draws = Draws::new(cfg.seed, frame.robot, frame.seq);
+    let mut out = Vec::new();
+    for id in ids {
+        let mut e = extents.remove(&id).expect("key listed");
+        if e.pixels < cfg.min_pixels.max(1) {
+            continue;
+        }
+        if has_depth {
+            if e.depths.is_empty() {
+                continue;
+            }
+            let mid = e.depths.len() / 2;
+            let median_m = *e.depths.select_nth_unstable(mid).1 as f32 / 1000.0;
+            if median_m > cfg.max_range_m {
+                continue;
+            }
+        }
+        if cfg.miss_rate > 0.0 && draws.uniform(u64::from(id), 0) < cfg.miss_rate {
+            continue;
+        }
+        let jitter = |k: u64| (draws.uniform(u64::from(id), k) * 2.0 - 1.0) * cfg.jitter_px;
+        // Pixel (x, y) covers [x, x+1) × [y, y+1).
+        let (mut x0, mut y0, mut x1, mut y1) =
+            (e.x_min as f32, e.y_min as f32, e.x_max as f32 + 1.0, e.y_max as f32 + 1.0);
+        if cfg.jitter_px > 0.0 {
+            x0 = (x0 + jitter(1)).clamp(0.0, fw);
+            y0 = (y0 + jitter(2)).clamp(0.0, fh);
+            x1 = (x1 + jitter(3)).clamp(0.0, fw);
+            y1 = (y1 + jitter(4)).clamp(0.0, fh);
+            if x1 <= x0 || y1 <= y0 {
+                continue;
+            }
+        }
+        out.push(Detection { x_min: x0, y_min: y0, x_max: x1, y_max: y1, class_id: classes[&id], score: cfg.score });
+    }
+    out
+}
+
+/// Visible extent (and depths) of every instance in `classes`.
+fn extents_of(frame: &LabeledFrame, classes: &HashMap<u32, i32>, with_depth: bool) -> HashMap<u32, Extent> {
+    let has_depth = with_depth && !frame.depth_mm.is_empty();
     let mut extents: HashMap<u32, Extent> = HashMap::new();
     let w = frame.width as usize;
     for (i, &id) in frame.instance_ids.iter().enumerate() {
@@ -132,42 +186,69 @@ pub fn detect(frame: &LabeledFrame, cfg: &SimConfig, filter: &DetectFilter) -> V
             e.depths.push(frame.depth_mm[i]);
         }
     }
+    extents
+}
+
+/// The realistic detector: misses, confusions, jitter, confidences and
+/// false positives drawn from the measured model.
+fn detect_realistic(frame: &LabeledFrame, cfg: &SimConfig, m: &DetectorModel, filter: &DetectFilter) -> Vec<Detection> {
+    let classes: HashMap<u32, i32> =
+        frame.instances.iter().filter(|i| i.class_id >= 0).map(|i| (i.instance_id, i.class_id)).collect();
+    let visible: HashMap<u32, f32> = frame.instances.iter().map(|i| (i.instance_id, i.visible_fraction)).collect();
+    let mut extents = extents_of(frame, &classes, false);
     let mut ids: Vec<u32> = extents.keys().copied().collect();
     ids.sort_unstable();
     let (fw, fh) = (frame.width as f32, frame.height as f32);
+    let to_reference = REFERENCE_HEIGHT_PX / fh.max(1.0);
+    let draws = Draws::new(cfg.seed, frame.robot, frame.seq);
     let mut out = Vec::new();
     for id in ids {
-        let mut e = extents.remove(&id).expect("key listed");
+        let e = extents.remove(&id).expect("key listed");
         if e.pixels < cfg.min_pixels.max(1) {
             continue;
         }
-        if has_depth {
-            if e.depths.is_empty() {
-                continue;
-            }
-            let mid = e.depths.len() / 2;
-            let median_m = *e.depths.select_nth_unstable(mid).1 as f32 / 1000.0;
-            if median_m > cfg.max_range_m {
-                continue;
-            }
-        }
-        if cfg.miss_rate > 0.0 && uniform(cfg.seed, frame.seq, id, 0) < cfg.miss_rate {
+        let item = u64::from(id);
+        let (x0, y0, x1, y1) = (e.x_min as f32, e.y_min as f32, e.x_max as f32 + 1.0, e.y_max as f32 + 1.0);
+        let (w, h) = (x1 - x0, y1 - y0);
+        let vis = visible.get(&id).copied().filter(|v| *v > 0.0).unwrap_or(1.0);
+        let recall = m.recall(classes[&id], h * to_reference, vis);
+        if draws.uniform(item, 0) >= recall {
             continue;
         }
-        let jitter = |k: u64| (uniform(cfg.seed, frame.seq, id, k) * 2.0 - 1.0) * cfg.jitter_px;
-        // Pixel (x, y) covers [x, x+1) × [y, y+1).
-        let (mut x0, mut y0, mut x1, mut y1) =
-            (e.x_min as f32, e.y_min as f32, e.x_max as f32 + 1.0, e.y_max as f32 + 1.0);
-        if cfg.jitter_px > 0.0 {
-            x0 = (x0 + jitter(1)).clamp(0.0, fw);
-            y0 = (y0 + jitter(2)).clamp(0.0, fh);
-            x1 = (x1 + jitter(3)).clamp(0.0, fw);
-            y1 = (y1 + jitter(4)).clamp(0.0, fh);
-            if x1 <= x0 || y1 <= y0 {
-                continue;
-            }
+        let class_id = m.confuse(classes[&id], draws.uniform(item, 1));
+        let score = from_deciles(&m.tp_score, draws.uniform(item, 2));
+        let j = |k: u64, size: f32| draws.normal(item, k) * m.jitter_sd * size;
+        let b = Detection {
+            x_min: (x0 + j(3, w)).clamp(0.0, fw),
+            y_min: (y0 + j(5, h)).clamp(0.0, fh),
+            x_max: (x1 + j(7, w)).clamp(0.0, fw),
+            y_max: (y1 + j(9, h)).clamp(0.0, fh),
+            class_id,
+            score,
+        };
+        if b.x_max > b.x_min && b.y_max > b.y_min && filter.accepts(&b) {
+            out.push(b);
         }
-        out.push(Detection { x_min: x0, y_min: y0, x_max: x1, y_max: y1, class_id: classes[&id], score: cfg.score });
+    }
+    let n_fp = draws.poisson(FP_ITEM, m.fp_per_frame);
+    for k in 0..u64::from(n_fp) {
+        let item = FP_ITEM + 1 + k;
+        let Some(class_id) = m.fp_class_at(draws.uniform(item, 0)) else { break };
+        let h = (from_deciles(&m.fp_height_px, draws.uniform(item, 1)) / to_reference).min(fh);
+        let w = (h * from_deciles(&m.fp_aspect, draws.uniform(item, 2))).min(fw);
+        let x0 = draws.uniform(item, 3) * (fw - w);
+        let y0 = draws.uniform(item, 4) * (fh - h);
+        let b = Detection {
+            x_min: x0,
+            y_min: y0,
+            x_max: x0 + w,
+            y_max: y0 + h,
+            class_id,
+            score: from_deciles(&m.fp_score, draws.uniform(item, 5)),
+        };
+        if w >= 1.0 && h >= 1.0 && filter.accepts(&b) {
+            out.push(b);
+        }
     }
     out
 }
@@ -198,16 +279,17 @@ mod tests {
             }
         }
         LabeledFrame {
+            robot: 0,
             seq,
             width: w,
             height: h,
             instance_ids: ids,
             instances: vec![
-                Instance { instance_id: 1, class_id: 0 },
-                Instance { instance_id: 2, class_id: 56 },
-                Instance { instance_id: 3, class_id: -1 },
-                Instance { instance_id: 4, class_id: 1 },
-                Instance { instance_id: 5, class_id: 39 },
+                Instance { instance_id: 1, class_id: 0, visible_fraction: 1.0 },
+                Instance { instance_id: 2, class_id: 56, visible_fraction: 1.0 },
+                Instance { instance_id: 3, class_id: -1, visible_fraction: 1.0 },
+                Instance { instance_id: 4, class_id: 1, visible_fraction: 1.0 },
+                Instance { instance_id: 5, class_id: 39, visible_fraction: 1.0 },
             ],
             depth_mm: depth,
         }
@@ -264,5 +346,170 @@ mod tests {
         assert_eq!(parse_u16_image("instance_ids", 2, 1, &[1, 0, 0, 1]).unwrap(), vec![1, 256]);
         let e = parse_u16_image("instance_ids", 2, 2, &[1, 0, 0, 1]).unwrap_err();
         assert!(e.to_string().contains("expected 8"), "{e}");
+    }
+
+    use crate::error_model::Profile;
+
+    /// A 160×120 frame with one instance of `class_id`, `h` pixels tall
+    /// (a third as wide), `visible` of it in view.
+    fn one_object(seq: u64, robot: u64, class_id: i32, h: u32, visible: f32) -> LabeledFrame {
+        let (w, fh) = (160u32, 120u32);
+        let mut ids = vec![0u16; (w * fh) as usize];
+        let bw = (h / 3).max(1);
+        for y in 10..10 + h {
+            for x in 60..60 + bw {
+                ids[(y * w + x) as usize] = 1;
+            }
+        }
+        LabeledFrame {
+            robot,
+            seq,
+            width: w,
+            height: fh,
+            instance_ids: ids,
+            instances: vec![Instance { instance_id: 1, class_id, visible_fraction: visible }],
+            depth_mm: Vec::new(),
+        }
+    }
+
+    /// The true box of [`one_object`].
+    fn truth(h: u32) -> Detection {
+        Detection {
+            x_min: 60.0,
+            y_min: 10.0,
+            x_max: 60.0 + (h / 3).max(1) as f32,
+            y_max: 10.0 + h as f32,
+            class_id: 0,
+            score: 1.0,
+        }
+    }
+
+    fn realistic(seed: u64) -> SimConfig {
+        SimConfig { min_pixels: 1, seed, model: Some(Arc::new(Profile::nanodet().detector)), ..Default::default() }
+    }
+
+    const N: u64 = 4000;
+
+    /// Tolerance of a rate measured over N trials: five binomial standard deviations.
+    fn tol(p: f32) -> f32 {
+        5.0 * (p * (1.0 - p) / N as f32).sqrt() + 1e-3
+    }
+
+    #[test]
+    fn realistic_misses_follow_the_calibrated_recall_by_height_and_visibility() {
+        let cfg = realistic(11);
+        let m = cfg.model.clone().unwrap();
+        let any = DetectFilter { class_ids: vec![], min_score: 0.0 };
+        for (h, vis) in [(4u32, 1.0f32), (8, 1.0), (16, 1.0), (40, 1.0), (40, 0.5), (16, 0.3)] {
+            let expected = m.recall(0, h as f32 * REFERENCE_HEIGHT_PX / 120.0, vis);
+            let found = (0..N)
+                .filter(|&seq| {
+                    detect(&one_object(seq, 5, 0, h, vis), &cfg, &any).iter().any(|d| d.iou(&truth(h)) > 0.3)
+                })
+                .count() as f32
+                / N as f32;
+            assert!(
+                (found - expected).abs() <= tol(expected) + 0.01,
+                "{h} px ({} px at 480), visible {vis}: found {found:.3}, calibrated {expected:.3}",
+                h * 4
+            );
+        }
+        // Recall rises with size and falls with occlusion.
+        assert!(m.recall(0, 16.0, 1.0) <= m.recall(0, 160.0, 1.0));
+        assert!(m.recall(0, 160.0, 0.3) <= m.recall(0, 160.0, 1.0));
+    }
+
+    #[test]
+    fn realistic_false_positives_come_at_the_calibrated_rate_classes_and_sizes() {
+        let cfg = realistic(12);
+        let m = cfg.model.clone().unwrap();
+        let any = DetectFilter { class_ids: vec![], min_score: 0.0 };
+        let mut empty = one_object(0, 7, 0, 1, 1.0);
+        empty.instance_ids.iter_mut().for_each(|i| *i = 0);
+        empty.instances.clear();
+        let mut fps = Vec::new();
+        for seq in 0..N {
+            empty.seq = seq;
+            fps.extend(detect(&empty, &cfg, &any));
+        }
+        let rate = fps.len() as f32 / N as f32;
+        let sd = (m.fp_per_frame / N as f32).sqrt();
+        assert!((rate - m.fp_per_frame).abs() <= 5.0 * sd + 0.01, "{rate} per frame, calibrated {}", m.fp_per_frame);
+        if m.fp_per_frame > 0.0 {
+            let top = m.fp_class.iter().max_by(|a, b| a.share.total_cmp(&b.share)).unwrap();
+            let share = fps.iter().filter(|d| d.class_id == top.class_id).count() as f32 / fps.len() as f32;
+            assert!((share - top.share).abs() < 0.08, "class {} share {share}, calibrated {}", top.class_id, top.share);
+            assert!(fps.iter().all(|d| d.x_min >= 0.0 && d.y_min >= 0.0 && d.x_max <= 160.0 && d.y_max <= 120.0));
+            assert!(fps.iter().all(|d| d.score >= m.fp_score[0] && d.score <= m.fp_score[10]));
+        }
+        // A filter on a class keeps only that class's false positives.
+        let chairs = DetectFilter { class_ids: vec![56], min_score: 0.0 };
+        assert!(
+            (0..200).flat_map(|seq| detect(&one_object(seq, 7, 0, 1, 1.0), &cfg, &chairs)).all(|d| d.class_id == 56)
+        );
+    }
+
+    #[test]
+    fn realistic_confusions_come_at_the_calibrated_rate() {
+        let cfg = realistic(13);
+        let m = cfg.model.clone().unwrap();
+        let any = DetectFilter { class_ids: vec![], min_score: 0.0 };
+        // A measured class with confusions, else an unmeasured one (the pooled rate to its confusable class).
+        let (class, rate) = m
+            .class
+            .iter()
+            .map(|c| (c.class_id, c.confusion.iter().map(|x| x.rate).sum::<f32>()))
+            .filter(|(_, r)| *r > 0.0)
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap_or((56, m.confusion_rate_all));
+        let (mut hits, mut confused) = (0u32, 0u32);
+        for seq in 0..N {
+            for d in detect(&one_object(seq, 9, class, 100, 1.0), &cfg, &any) {
+                if d.iou(&truth(100)) > 0.5 {
+                    hits += 1;
+                    confused += u32::from(d.class_id != class);
+                }
+            }
+        }
+        let measured = confused as f32 / hits.max(1) as f32;
+        assert!(hits > 1000, "{hits}");
+        assert!(
+            (measured - rate).abs() <= tol(rate) * 2.0 + 0.01,
+            "class {class}: {measured:.3} vs calibrated {rate:.3}"
+        );
+    }
+
+    #[test]
+    fn realistic_boxes_jitter_by_the_calibrated_spread_and_scores_follow_the_deciles() {
+        let cfg = realistic(14);
+        let m = cfg.model.clone().unwrap();
+        let any = DetectFilter { class_ids: vec![0], min_score: 0.0 };
+        let mut left = Vec::new();
+        let mut scores = Vec::new();
+        for seq in 0..N {
+            for d in detect(&one_object(seq, 3, 0, 90, 1.0), &cfg, &any) {
+                if d.iou(&truth(90)) > 0.5 {
+                    left.push((d.x_min - 60.0) / 30.0);
+                    scores.push(d.score);
+                }
+            }
+        }
+        let sd = (left.iter().map(|x| x * x).sum::<f32>() / left.len() as f32).sqrt();
+        assert!((sd - m.jitter_sd).abs() < 0.2 * m.jitter_sd + 0.01, "edge sd {sd}, calibrated {}", m.jitter_sd);
+        scores.sort_by(f32::total_cmp);
+        let median = scores[scores.len() / 2];
+        assert!((median - m.tp_score[5]).abs() < 0.03, "median score {median}, calibrated {}", m.tp_score[5]);
+    }
+
+    #[test]
+    fn realistic_draws_depend_on_seed_robot_and_frame_only() {
+        let cfg = realistic(15);
+        let any = DetectFilter { class_ids: vec![], min_score: 0.0 };
+        let run = |robot: u64, cfg: &SimConfig| -> Vec<Vec<Detection>> {
+            (0..300).map(|seq| detect(&one_object(seq, robot, 0, 12, 1.0), cfg, &any)).collect()
+        };
+        assert_eq!(run(1, &cfg), run(1, &cfg));
+        assert_ne!(run(1, &cfg), run(2, &cfg), "another robot draws other errors");
+        assert_ne!(run(1, &cfg), run(1, &realistic(16)), "another seed too");
     }
 }

@@ -8,8 +8,9 @@ use tonic::Code;
 use vlnav_detector::{BackendKind, Options};
 use vlnav_proto::v1;
 
+/// The oracle simulation backend: exact boxes (the realistic model is tested in `sim.rs`).
 fn sim_options() -> Options {
-    Options { backend: BackendKind::Sim, sim_min_pixels: 4, ..Default::default() }
+    Options { backend: BackendKind::Sim, sim_min_pixels: 4, sim_profile: "oracle".into(), ..Default::default() }
 }
 
 /// A 16×8 label frame: a person (instance 7) at x 2..5, y 1..7, 2 m away; a
@@ -35,6 +36,7 @@ fn labelled_frame(seq: u64) -> v1::RgbdFrame {
         class_id,
         identity: String::new(),
         semantic: semantic.into(),
+        ..Default::default()
     };
     v1::RgbdFrame {
         robot_id: "husky-1".into(),

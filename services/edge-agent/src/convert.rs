@@ -90,11 +90,13 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
             instances: f
                 .instances
                 .iter()
-                .map(|e| pb::LabelInstance {
+                .enumerate()
+                .map(|(i, e)| pb::LabelInstance {
                     instance_id: e.instance_id as u32,
                     class_id: e.class_id,
                     identity: e.identity.clone(),
                     semantic: e.semantic.as_str().to_string(),
+                    visible_fraction: f.visible_fraction.get(i).copied().unwrap_or(1.0),
                 })
                 .collect(),
         }),

@@ -11,21 +11,30 @@ use vlnav_runtime::actor::Mailbox;
 use crate::embedder::Embedder;
 use crate::gallery::{Gallery, GalleryError};
 use crate::preprocess::CropBox;
-use crate::sim::{Labels, identity_under_box};
+use crate::sim::{Labels, drawn_similarity, identity_under_box};
+use vlnav_runtime::perception::{Draws, ReidModel};
 
 /// What the actor runs on.
 pub enum Backend {
     /// A real appearance network.
     Appearance(Embedder),
-    /// Identities read from the simulator's label image.
-    Simulation,
+    /// Identities read from the simulator's label image: the truth (oracle,
+    /// `None`) or similarities drawn from a measured model (realistic).
+    Simulation(Option<SimReid>),
+}
+
+/// The realistic simulation backend's model and seed.
+#[derive(Clone, Debug)]
+pub struct SimReid {
+    pub model: ReidModel,
+    pub seed: u64,
 }
 
 impl Backend {
     pub fn name(&self) -> &'static str {
         match self {
             Backend::Appearance(e) => e.kind().name(),
-            Backend::Simulation => "sim",
+            Backend::Simulation(_) => "sim",
         }
     }
 }
@@ -66,6 +75,9 @@ pub struct IdentifyQuery {
     /// Minimum similarity; `None` for the service default.
     pub threshold: Option<f32>,
     pub only: Option<String>,
+    /// Hash of the robot id and the frame's seq (the realistic simulation's draws).
+    pub robot: u64,
+    pub seq: u64,
 }
 
 pub struct EnrollOutcome {
@@ -138,7 +150,7 @@ impl ReidActor {
     fn enroll(&mut self, name: &str, images: &[RgbImage]) -> Result<EnrollOutcome, ReidError> {
         let embeddings = match &self.backend {
             Backend::Appearance(e) => e.embed_images(images)?,
-            Backend::Simulation => Vec::new(),
+            Backend::Simulation(_) => Vec::new(),
         };
         let mut kept = 0;
         self.commit(|g| kept = g.enroll(name, images.len() as u32, embeddings))?;
@@ -160,7 +172,7 @@ impl ReidActor {
     fn embed(&self, images: &[RgbImage]) -> Result<Vec<Vec<f32>>, ReidError> {
         match &self.backend {
             Backend::Appearance(e) => Ok(e.embed_images(images)?),
-            Backend::Simulation => Err(ReidError::NoEmbeddings),
+            Backend::Simulation(_) => Err(ReidError::NoEmbeddings),
         }
     }
 
@@ -194,12 +206,33 @@ impl ReidActor {
                     })
                     .collect())
             }
-            Backend::Simulation => {
+            Backend::Simulation(sim) => {
                 let labels = q.labels.as_ref().ok_or_else(|| {
                     ReidError::InvalidArgument(
                         "frame.labels: the simulation backend reads identities from the label image, and this frame has none".into(),
                     )
                 })?;
+                if let Some(sim) = sim {
+                    let draws = Draws::new(sim.seed, q.robot, q.seq);
+                    return Ok(q
+                        .boxes
+                        .iter()
+                        .map(|(i, b)| {
+                            let truth = identity_under_box(labels, *b);
+                            let best = self
+                                .gallery
+                                .people
+                                .keys()
+                                .filter(|name| q.only.as_deref().is_none_or(|o| o == name.as_str()))
+                                .map(|name| (drawn_similarity(&sim.model, &draws, *i, truth.as_ref(), name), name))
+                                .max_by(|a, b| a.0.total_cmp(&b.0).then(b.1.cmp(a.1)));
+                            match best {
+                                Some((s, name)) => verdict(*i, name.clone(), s),
+                                None => verdict(*i, String::new(), 0.0),
+                            }
+                        })
+                        .collect());
+                }
                 Ok(q.boxes
                     .iter()
                     .map(|(i, b)| match identity_under_box(labels, *b) {

@@ -178,7 +178,8 @@ impl ReidGrpc {
             .enumerate()
             .map(|(i, b)| check_box(b, i, width, height).map(|c| (i, c)))
             .collect::<Result<Vec<_>, _>>()?;
-        let query = IdentifyQuery { image, labels, boxes, threshold, only };
+        let robot = vlnav_runtime::perception::hash_str(&frame.robot_id);
+        let query = IdentifyQuery { image, labels, boxes, threshold, only, robot, seq: frame.seq };
         let verdicts = self.actor.call(|reply| Msg::Identify { query, reply }).await??;
         Ok(IdentifyResponse {
             identities: verdicts

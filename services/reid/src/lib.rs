@@ -66,6 +66,14 @@ pub struct Options {
     /// Default match threshold (cosine similarity); the backend's tuned value if unset.
     #[arg(long = "reid-threshold", env = "VLNAV_REID_THRESHOLD")]
     pub threshold: Option<f32>,
+    /// `sim` backend: `nanodet` draws similarities from the shipped embedder's
+    /// measured distributions (deploy/perception/nanodet-realistic.toml),
+    /// `oracle` reads the truth, or a profile file from `vlnav calibrate-perception`.
+    #[arg(long = "reid-sim-profile", env = "VLNAV_REID_SIM_PROFILE", default_value = "nanodet")]
+    pub sim_profile: String,
+    /// `sim` backend: seed of the drawn similarities (with robot id and frame seq).
+    #[arg(long = "reid-sim-seed", env = "VLNAV_REID_SIM_SEED", default_value_t = 0)]
+    pub sim_seed: u64,
 }
 
 impl Default for Options {
@@ -76,8 +84,29 @@ impl Default for Options {
             models_dir: PathBuf::from("models"),
             data_dir: PathBuf::from("data/reid"),
             threshold: None,
+            sim_profile: "nanodet".into(),
+            sim_seed: 0,
         }
     }
+}
+
+/// The realistic simulation model named by `--reid-sim-profile`, if any.
+fn sim_model(opts: &Options) -> anyhow::Result<Option<actor::SimReid>> {
+    use vlnav_runtime::perception::Profile;
+    let profile = match opts.sim_profile.as_str() {
+        "oracle" => return Ok(None),
+        "nanodet" | "nanodet-realistic" => Profile::nanodet(),
+        path => {
+            let text = std::fs::read_to_string(path).with_context(|| {
+                format!("--reid-sim-profile {path}: cannot read it (use `nanodet`, `oracle` or a profile file)")
+            })?;
+            Profile::parse(&text).map_err(|e| anyhow::anyhow!("{path}: {e}"))?
+        }
+    };
+    let model = profile
+        .reid
+        .ok_or_else(|| anyhow::anyhow!("--reid-sim-profile {}: the profile has no [reid] section", opts.sim_profile))?;
+    Ok(Some(actor::SimReid { model, seed: opts.sim_seed }))
 }
 
 /// Loads the backend and the gallery, spawns the actor, returns the service.
@@ -86,7 +115,14 @@ pub async fn services(
     server: &vlnav_runtime::ServerConfig,
 ) -> anyhow::Result<vlnav_runtime::ServiceSet> {
     let (backend, default_threshold, dim) = if opts.backend == "sim" {
-        (Backend::Simulation, SIM_THRESHOLD, 0)
+        match sim_model(opts)? {
+            // Drawn similarities are the real embedder's: its threshold applies.
+            Some(sim) => {
+                let t = sim.model.threshold;
+                (Backend::Simulation(Some(sim)), t, 0)
+            }
+            None => (Backend::Simulation(None), SIM_THRESHOLD, 0),
+        }
     } else {
         let kind = ModelKind::parse(&opts.backend).with_context(|| {
             format!("unknown ReID backend {:?}: use mobilenetv2, osnet_x0_25, osnet_x1_0 or sim", opts.backend)

@@ -2,8 +2,17 @@
 //! image (instance id per pixel + a table giving each instance's class and,
 //! for named people, identity); the identity under a box is that of the
 //! person instance covering most of the box's person pixels.
+//!
+//! With a measured [`ReidModel`] (realistic perception) the backend does not
+//! hand out the truth: a box's similarity to each enrolled person is drawn
+//! from the shipped embedder's measured same-person or different-people
+//! similarity distribution, and the usual threshold decides — so a stranger
+//! can be taken for the person and the person can be missed, at the rates
+//! the real embedder shows.
 
 use std::collections::HashMap;
+
+use vlnav_runtime::perception::{Draws, ReidModel, from_deciles, hash_str};
 
 use crate::preprocess::CropBox;
 
@@ -64,6 +73,24 @@ pub fn identity_under_box(labels: &Labels, region: CropBox) -> Option<LabelledId
     })
 }
 
+/// The realistic similarity of a box to enrolled person `candidate`: drawn
+/// from the same-person distribution when the box's dominant person *is*
+/// the candidate (and covers at least half of its person pixels), from the
+/// different-people distribution otherwise. `draws` is keyed by (seed,
+/// robot, frame); the box index and the candidate's name pick the draw.
+pub fn drawn_similarity(
+    model: &ReidModel,
+    draws: &Draws,
+    box_index: usize,
+    truth: Option<&LabelledIdentity>,
+    candidate: &str,
+) -> f32 {
+    let same = truth.is_some_and(|t| t.identity == candidate && t.purity >= 0.5);
+    let item = hash_str(candidate) ^ ((box_index as u64) << 40);
+    let u = draws.uniform(item, 0);
+    from_deciles(if same { &model.same } else { &model.different }, u)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -91,5 +118,31 @@ mod tests {
         assert_eq!(got.identity, "", "the unnamed person dominates the right half");
         let wall = CropBox { x_min: 0.0, y_min: 0.0, x_max: 1.0, y_max: 2.0 };
         assert_eq!(identity_under_box(&l, wall), None);
+    }
+
+    #[test]
+    fn drawn_similarities_follow_the_measured_distributions() {
+        let model = ReidModel {
+            model: "m".into(),
+            threshold: 0.8,
+            same: (0..=10).map(|k| 0.82 + 0.01 * k as f32).collect(),
+            different: (0..=10).map(|k| 0.5 + 0.035 * k as f32).collect(),
+            same_pairs: 10,
+            different_pairs: 10,
+        };
+        let ana = LabelledIdentity { identity: "ana".into(), purity: 0.9 };
+        let (mut same_hits, mut false_hits) = (0, 0);
+        for seq in 0..2000 {
+            let d = Draws::new(3, hash_str("husky-1"), seq);
+            if drawn_similarity(&model, &d, 0, Some(&ana), "ana") >= 0.8 {
+                same_hits += 1;
+            }
+            if drawn_similarity(&model, &d, 0, Some(&ana), "bo") >= 0.8 {
+                false_hits += 1;
+            }
+        }
+        assert_eq!(same_hits, 2000, "every same-person draw is above 0.82");
+        // P(different ≥ 0.8) = (0.85 − 0.8) / 0.35 × 0.1 ≈ 1.4 %.
+        assert!((10..=50).contains(&false_hits), "{false_hits}");
     }
 }

@@ -11,7 +11,13 @@ use vlnav_proto::v1::{
 };
 
 fn sim_opts(dir: &std::path::Path) -> vlnav_reid::Options {
-    vlnav_reid::Options { backend: "sim".into(), data_dir: dir.to_path_buf(), ..Default::default() }
+    // The oracle: identities as labelled (the realistic draws are tested in `sim.rs`).
+    vlnav_reid::Options {
+        backend: "sim".into(),
+        sim_profile: "oracle".into(),
+        data_dir: dir.to_path_buf(),
+        ..Default::default()
+    }
 }
 
 fn rgb8(w: u32, h: u32) -> Image {
@@ -43,6 +49,8 @@ fn labelled_frame() -> RgbdFrame {
         class_id,
         identity: identity.into(),
         semantic: semantic.into(),
+
+        ..Default::default()
     };
     RgbdFrame {
         stamp: 3.5,

@@ -7,10 +7,13 @@
 //! - [`client`]: channels whose requests carry the caller's trace context;
 //! - [`actor`]: the request/reply helper every service actor uses;
 //! - [`testing`]: a service set served on an ephemeral loopback port, for
-//!   integration tests.
+//!   integration tests;
+//! - [`perception`]: the measured perception error model the simulation
+//!   detector and ReID backends draw from.
 
 pub mod actor;
 pub mod client;
+pub mod perception;
 pub mod server;
 pub mod telemetry;
 pub mod testing;

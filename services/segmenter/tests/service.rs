@@ -266,6 +266,8 @@ async fn the_simulation_backend_reads_semantics_from_the_label_image() {
         class_id: -1,
         identity: String::new(),
         semantic: semantic.into(),
+
+        ..Default::default()
     };
     let mut f = frame(rgb.iter().map(|_| 128).collect(), depth);
     f.labels = Some(LabelImage {

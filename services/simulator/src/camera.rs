@@ -16,8 +16,18 @@ use crate::world::{Entity, Semantic, World};
 /// Camera settings. Defaults: 640×480 with the paper's Gazebo intrinsics
 /// (fx = fy = 343.159, cx = 320.5, cy = 240.5), the camera body 0.30 m ahead of
 /// base_link's origin and 0.60 m above it (the front of a Husky's top rail,
-/// on a short mast), level and facing forward; depth valid 0.3–10 m with
-/// noise σ = 0.002·z² m (≈ 0.8 % at 4 m; the D455 is specified ≤ 2 %).
+/// on a short mast), level and facing forward, and the RealSense D455's
+/// depth errors (Intel RealSense D400 series datasheet, rev. 2022, table
+/// "D455 depth module": RMS error ≤ 2 % at 4 m, ideal range 0.6–6 m,
+/// stereo baseline 95 mm; see docs/perception.md):
+/// - noise σ = k·z² with k = 0.005 m⁻¹ (0.08 m = 2 % at 4 m; stereo depth
+///   error grows with the square of range);
+/// - beyond the reliable range (6 m) a growing share of pixels has no depth
+///   (half of them at 10 m), and none beyond `depth_max_m`;
+/// - holes at depth discontinuities: background pixels seen by the left
+///   (reference) imager but hidden from the right one by a nearer surface
+///   have no match; the band left of a near edge is f·B·(1/z_near − 1/z_far)
+///   pixels wide.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CameraConfig {
     pub width: u32,
@@ -33,6 +43,10 @@ pub struct CameraConfig {
     pub depth_min_m: f64,
     pub depth_max_m: f64,
     pub depth_noise_k: f64,
+    /// Beyond this range pixels start to lose their depth, metres.
+    pub depth_reliable_max_m: f64,
+    /// Stereo baseline for the occlusion holes at depth edges, metres (0: none).
+    pub stereo_baseline_m: f64,
 }
 
 pub const PAPER_WIDTH: u32 = 640;
@@ -40,6 +54,8 @@ pub const PAPER_HEIGHT: u32 = 480;
 pub const PAPER_F: f64 = 343.159;
 pub const PAPER_CX: f64 = 320.5;
 pub const PAPER_CY: f64 = 240.5;
+/// σ = k·z²: the D455's ≤ 2 % RMS at 4 m (0.08 m) gives k = 0.08 / 4².
+pub const D455_NOISE_K: f64 = 0.005;
 
 impl Default for CameraConfig {
     fn default() -> Self {
@@ -54,7 +70,9 @@ impl Default for CameraConfig {
             mount_yaw: 0.0,
             depth_min_m: 0.3,
             depth_max_m: 10.0,
-            depth_noise_k: 0.002,
+            depth_noise_k: D455_NOISE_K,
+            depth_reliable_max_m: 6.0,
+            stereo_baseline_m: 0.095,
         }
     }
 }
@@ -105,6 +123,12 @@ impl CameraConfig {
         if !(self.depth_noise_k.is_finite() && (0.0..=0.1).contains(&self.depth_noise_k)) {
             return Err(("depth_noise_k", format!("{} must be within [0, 0.1]", self.depth_noise_k)));
         }
+        if !(self.depth_reliable_max_m.is_finite() && self.depth_reliable_max_m > self.depth_min_m) {
+            return Err(("depth_reliable_max_m", format!("{} must be above depth_min_m", self.depth_reliable_max_m)));
+        }
+        if !(self.stereo_baseline_m.is_finite() && (0.0..=1.0).contains(&self.stereo_baseline_m)) {
+            return Err(("stereo_baseline_m", format!("{} must be within [0, 1] m", self.stereo_baseline_m)));
+        }
         Ok(())
     }
 
@@ -125,6 +149,11 @@ pub struct Frame {
     pub depth_mm: Vec<u16>,
     pub labels: Vec<u16>,
     pub instances: Vec<Entity>,
+    /// Per entry of `instances`: the share of its unoccluded, untruncated
+    /// projection that is in view (1 for floor markings and structure
+    /// seen whole, ≤ 1 for anything hidden behind something or cut by the
+    /// image border).
+    pub visible_fraction: Vec<f32>,
 }
 
 impl Frame {
@@ -171,6 +200,13 @@ pub struct Renderer {
     seen: Vec<bool>,
     ped_shapes: Vec<Shape>,
     row_slope: Vec<f64>,
+    /// Noise-free optical z per pixel (for the stereo holes), metres.
+    zbuf: Vec<f32>,
+    /// Per entity: pixels in view, pixels of its unoccluded projection in
+    /// the image's columns, last column counted.
+    vis_px: Vec<f64>,
+    full_px: Vec<f64>,
+    full_col: Vec<u32>,
 }
 
 impl Renderer {
@@ -197,6 +233,15 @@ impl Renderer {
         frame.labels.resize(w * h, 0);
         self.seen.clear();
         self.seen.resize(world.entities.len() + 1, false);
+        let n_ent = world.entities.len() + 1;
+        self.vis_px.clear();
+        self.vis_px.resize(n_ent, 0.0);
+        self.full_px.clear();
+        self.full_px.resize(n_ent, 0.0);
+        self.full_col.clear();
+        self.full_col.resize(n_ent, u32::MAX);
+        self.zbuf.clear();
+        self.zbuf.resize(w * h, f32::INFINITY);
 
         let (cam_pose, cz) = cam.pose_in_world(robot);
         let origin = Vec2::from(cam_pose.position());
@@ -240,6 +285,20 @@ impl Renderer {
                 }
             }
             self.hits.sort_by(|a, b| a.span.t_in.total_cmp(&b.span.t_in));
+            // Rows each prism would cover in this column were nothing in
+            // front of it (its near face, and its top when below the camera).
+            for hit in &self.hits {
+                let e = hit.entity as usize;
+                if self.full_col[e] == u as u32 {
+                    continue;
+                }
+                self.full_col[e] = u as u32;
+                let t_near = hit.span.t_in.max(0.05);
+                let t_far = if hit.height < cz { hit.span.t_out.max(t_near) } else { t_near };
+                let v_top = cam.cy - cam.fy * (hit.height - cz) / t_far;
+                let v_bottom = cam.cy + cam.fy * cz / t_near;
+                self.full_px[e] += (v_bottom - v_top).max(0.0);
+            }
             self.floor.clear();
             for m in &world.markings {
                 for shape in &m.shapes {
@@ -317,6 +376,8 @@ impl Renderer {
                 frame.rgb[3 * i + 2] = (color[2] as f64 * k).round().min(255.0) as u8;
                 frame.labels[i] = entity;
                 self.seen[entity as usize] = true;
+                self.vis_px[entity as usize] += 1.0;
+                self.zbuf[i] = t as f32;
                 frame.depth_mm[i] = if t.is_finite() {
                     let z = if noise_on {
                         let n: f64 = StandardNormal.sample(rng);
@@ -324,15 +385,90 @@ impl Renderer {
                     } else {
                         t
                     };
-                    if z >= cam.depth_min_m && z <= cam.depth_max_m { (z * 1000.0).round() as u16 } else { 0 }
+                    // Beyond the reliable range a growing share of pixels has no match.
+                    let lost = if t > cam.depth_reliable_max_m {
+                        let p = 0.5 * (t - cam.depth_reliable_max_m)
+                            / (cam.depth_max_m - cam.depth_reliable_max_m).max(1e-6);
+                        rng.random::<f64>() < p
+                    } else {
+                        false
+                    };
+                    if !lost && z >= cam.depth_min_m && z <= cam.depth_max_m { (z * 1000.0).round() as u16 } else { 0 }
                 } else {
                     0
                 };
             }
         }
+        if cam.stereo_baseline_m > 0.0 {
+            stereo_holes(&self.zbuf, w, h, cam.fx * cam.stereo_baseline_m, &mut frame.depth_mm);
+        }
         frame.instances.clear();
-        frame.instances.extend(world.entities.iter().filter(|e| self.seen[e.instance_id as usize]).cloned());
+        frame.visible_fraction.clear();
+        for e in world.entities.iter().filter(|e| self.seen[e.instance_id as usize]) {
+            let id = e.instance_id as usize;
+            let shape = prisms.iter().find(|p| p.entity == e.instance_id).map(|p| p.shape);
+            let occlusion = if self.full_px[id] > 0.0 { (self.vis_px[id] / self.full_px[id]).min(1.0) } else { 1.0 };
+            let truncation = shape.map(|s| in_view_share(s, origin, forward, left, cam)).unwrap_or(1.0);
+            frame.instances.push(e.clone());
+            frame.visible_fraction.push((occlusion * truncation) as f32);
+        }
     }
+}
+
+/// Invalidates the occlusion band of a stereo camera whose reference imager
+/// is the left one: left of every place where a row steps to a nearer
+/// surface, background pixels the right imager cannot see have no match.
+/// The band is `fb · (1/z_near − 1/z_far)` pixels wide (`fb` = focal length
+/// in pixels × baseline in metres).
+fn stereo_holes(z: &[f32], w: usize, h: usize, fb: f64, depth_mm: &mut [u16]) {
+    for v in 0..h {
+        let row = &z[v * w..(v + 1) * w];
+        for u in 1..w {
+            let (far, near) = (row[u - 1], row[u]);
+            if !(near.is_finite() && near > 0.0) || !(far > near * 1.1 + 0.05) {
+                continue;
+            }
+            let inv_far = if far.is_finite() { 1.0 / f64::from(far) } else { 0.0 };
+            let band = (fb * (1.0 / f64::from(near) - inv_far)).round() as usize;
+            for k in u.saturating_sub(band)..u {
+                depth_mm[v * w + k] = 0;
+            }
+        }
+    }
+}
+
+/// The share of a shape's horizontal extent that falls inside the image
+/// (1 when whole; the rest is cut off by the image border or behind the camera).
+fn in_view_share(shape: &Shape, origin: Vec2, forward: Vec2, left: Vec2, cam: &CameraConfig) -> f64 {
+    let (lo, hi) = shape.bounds();
+    let mut u_min = f64::INFINITY;
+    let mut u_max = f64::NEG_INFINITY;
+    for p in [Vec2::new(lo.x, lo.y), Vec2::new(hi.x, lo.y), Vec2::new(hi.x, hi.y), Vec2::new(lo.x, hi.y)] {
+        let r = p.sub(origin);
+        let (x, y) = (r.dot(forward), r.dot(left));
+        if x < 0.05 {
+            // Part of it is beside or behind the camera: that side runs off the image.
+            if y > 0.0 {
+                u_min = f64::NEG_INFINITY;
+            } else {
+                u_max = f64::INFINITY;
+            }
+            continue;
+        }
+        let u = cam.cx - cam.fx * y / x;
+        u_min = u_min.min(u);
+        u_max = u_max.max(u);
+    }
+    if !(u_max > u_min) {
+        return 1.0;
+    }
+    if u_min.is_infinite() || u_max.is_infinite() {
+        // Unbounded: the in-view part is small against what lies beyond.
+        let inside = (u_max.min(cam.width as f64) - u_min.max(0.0)).max(0.0);
+        return (inside / (inside + cam.width as f64)).clamp(0.0, 1.0);
+    }
+    let inside = (u_max.min(cam.width as f64) - u_min.max(0.0)).max(0.0);
+    (inside / (u_max - u_min)).clamp(0.0, 1.0)
 }
 
 /// The semantic class of label `id` in `frame`, if any.

@@ -122,6 +122,10 @@ pub struct CameraSpec {
     pub depth_max_m: Option<f64>,
     /// Depth noise σ = k·z² (metres), k in 1/m.
     pub depth_noise_k: Option<f64>,
+    /// Beyond this range pixels start to lose their depth, metres.
+    pub depth_reliable_max_m: Option<f64>,
+    /// Stereo baseline for occlusion holes at depth edges, metres (0: none).
+    pub stereo_baseline_m: Option<f64>,
 }
 
 #[derive(Deserialize, Debug, Clone)]
@@ -574,6 +578,12 @@ fn camera_config(c: &CameraSpec) -> Result<CameraConfig, ScenarioError> {
     }
     if let Some(v) = c.depth_noise_k {
         cam.depth_noise_k = v;
+    }
+    if let Some(v) = c.depth_reliable_max_m {
+        cam.depth_reliable_max_m = v;
+    }
+    if let Some(v) = c.stereo_baseline_m {
+        cam.stereo_baseline_m = v;
     }
     cam.validate().map_err(|(k, m)| ScenarioError::invalid(format!("camera.{k}"), m))?;
     Ok(cam)

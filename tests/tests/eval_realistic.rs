@@ -1,0 +1,61 @@
+//! Regression of the evaluation under realistic perception: a small seeded
+//! subset through the real services (all-in-one stack with the measured
+//! detector and ReID error model and the real colour + depth segmenter,
+//! lockstep simulated robots over gRPC), with its per-trial results pinned.
+//! A change to perception, control or the metrics that moves any of them
+//! shows here; re-pin only for a change that should move them, and say why.
+
+use vlnav_e2e::TestStack;
+use vlnav_eval::PerceptionMode;
+use vlnav_eval::metrics::Mode;
+
+/// scenario, trial, outcome, success, success at 0.25 m, stopping error (m, 2 decimals), hard contact.
+const PINNED: &str = "PIN";
+
+fn args(out: &std::path::Path) -> vlnav_eval::EvalArgs {
+    vlnav_eval::EvalArgs {
+        trials: Some(2),
+        seed: 11,
+        scenarios: vec!["precise".into(), "symmetric".into()],
+        modes: vec![Mode::Hybrid],
+        out: out.to_path_buf(),
+        jobs: 4,
+        stall_timeout_s: 120.0,
+        no_progress: true,
+        perception: PerceptionMode::Realistic,
+        ..vlnav_eval::EvalArgs::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_seeded_realistic_subset_gives_its_pinned_results() {
+    let t = TestStack::start(|a| {
+        a.no_robot = true;
+        a.perception = PerceptionMode::Realistic;
+    })
+    .await;
+    let out = tempfile::tempdir().unwrap();
+    let report = vlnav_eval::run_eval(args(out.path()), t.uri()).await.expect("the evaluation runs");
+    let mut records = report.records.clone();
+    records.sort_by(|a, b| (&a.scenario, a.trial).cmp(&(&b.scenario, b.trial)));
+    let got: Vec<String> = records
+        .iter()
+        .map(|r| {
+            format!(
+                "{} {} {} {} {} {:+.2} {}",
+                r.scenario,
+                r.trial,
+                r.outcome.as_str(),
+                r.success(),
+                r.success_within(0.25),
+                r.stop_error_m(),
+                r.contact.hard_events
+            )
+        })
+        .collect();
+    let got = got.join("\n");
+    println!("{got}");
+    assert!(report.markdown.contains("Perception `realistic`"));
+    assert_eq!(got, PINNED, "the realistic subset's results moved");
+    t.stack.shutdown().await.unwrap();
+}
