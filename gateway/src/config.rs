@@ -29,9 +29,14 @@ pub struct GatewayOptions {
 /// Mission-executor parameters. Durations are sensor time.
 #[derive(clap::Args, Clone, Debug)]
 pub struct ExecutorParams {
-    /// Consecutive frames with the target before it counts as found.
+    /// Sightings of the target (within the last --confirm-window frames)
+    /// before it counts as found.
     #[arg(long, env = "VLNAV_CONFIRM_FRAMES", default_value_t = 3)]
     pub confirm_frames: u32,
+    /// Frames the sightings are counted over (1–64; equal to --confirm-frames
+    /// demands an unbroken streak).
+    #[arg(long, env = "VLNAV_CONFIRM_WINDOW", default_value_t = 8, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub confirm_window: u32,
     /// Detector confidence for targets.
     #[arg(long, env = "VLNAV_MIN_SCORE", default_value_t = 0.4)]
     pub min_score: f32,
@@ -81,6 +86,7 @@ impl Default for ExecutorParams {
     fn default() -> Self {
         Self {
             confirm_frames: 3,
+            confirm_window: 8,
             min_score: 0.4,
             default_d_s: 1.5,
             unseen_frames: 10,

@@ -16,8 +16,10 @@
 //!   swerve or a settle at the end of a step would otherwise rotate everything
 //!   after it.
 //! - FIND: detector (+ ReID for a named person) → subgoal estimator (fused
-//!   target) → confirmed after `confirm_frames` consecutive sightings → local
-//!   planner until within d_s. Once a fixed target is confirmed, each frame's
+//!   target) → confirmed after `confirm_frames` sightings within the last
+//!   `confirm_window` frames (a real detector misses a small or distant
+//!   object in many frames; demanding an unbroken streak would leave it
+//!   unconfirmed — docs/perception.md) → local planner until within d_s. Once a fixed target is confirmed, each frame's
 //!   box is the one where the fused target projects (camera model, odometry
 //!   pose), not the one nearest last frame's box: a turning robot shifts the
 //!   image by tens of pixels a frame, and a second chair swinging into view
@@ -195,7 +197,8 @@ struct FindRun {
     target: String,
     d_s: f64,
     moving: bool,
-    streak: u32,
+    /// Sightings of the last frames, newest in bit 0.
+    recent: u64,
     confirmed: bool,
     goal: Option<Goal>,
     /// The fused target (odom) of the latest accepted observation.
@@ -609,7 +612,7 @@ impl Mission {
                 },
                 d_s,
                 moving: step.action == Action::Follow,
-                streak: 0,
+                recent: 0,
                 confirmed: false,
                 goal: None,
                 fused: None,
@@ -750,12 +753,12 @@ impl Mission {
         match observation {
             Some((b, identity, similarity, est)) => {
                 f.unseen = 0;
-                f.streak += 1;
+                f.recent = (f.recent << 1 | 1) & window_mask(p.confirm_window);
                 f.last_seen = Some(stamp);
                 f.goal = est.goal;
                 f.fused = est.fused_target.or(f.fused);
                 f.last_center = Some(b.center());
-                if !f.confirmed && f.streak >= p.confirm_frames {
+                if !f.confirmed && f.recent.count_ones() >= p.confirm_frames {
                     f.confirmed = true;
                     f.explore = Explore::Idle;
                     seen = Some(Event::TargetSeen {
@@ -770,7 +773,7 @@ impl Mission {
                 }
             }
             None => {
-                f.streak = 0;
+                f.recent = (f.recent << 1) & window_mask(p.confirm_window);
                 f.unseen += 1;
                 if f.moving && f.confirmed && f.last_seen.is_some_and(|t| stamp - t > p.follow_lost_s) {
                     f.confirmed = false;
@@ -778,7 +781,7 @@ impl Mission {
             }
         }
         let (confirmed, goal, moving, waiting) =
-            (f.confirmed, f.goal, f.moving, f.streak > 0 || f.unseen < p.unseen_frames);
+            (f.confirmed, f.goal, f.moving, f.recent != 0 || f.unseen < p.unseen_frames);
         if let Some(event) = seen {
             self.emit(event);
         }
@@ -1049,3 +1052,11 @@ impl Mission {
 #[cfg(test)]
 #[path = "machine_tests.rs"]
 mod tests;
+
+/// The bits of the last `window` frames (1 to 64).
+fn window_mask(window: u32) -> u64 {
+    match window.clamp(1, 64) {
+        64 => u64::MAX,
+        w => (1u64 << w) - 1,
+    }
+}

@@ -223,8 +223,49 @@ fn a_target_is_confirmed_after_consecutive_sightings_then_approached() {
 }
 
 #[test]
+fn intermittent_sightings_confirm_within_the_window_and_misses_do_not_count() {
+    // A detector that sees the chair every other frame (and, between, a box
+    // without depth): 3 sightings within 8 frames confirm on the 5th frame.
+    let p = ExecutorParams { confirm_frames: 3, confirm_window: 8, ..ExecutorParams::default() };
+    let mut m = mission(vec![find(56, "chair")]);
+    let (mut k, mut drives) = (0, 0);
+    let mut flaky = |r: &Request| -> Result<Reply, StageFailure> {
+        Ok(match r {
+            Request::StartStep { .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Locate { .. } => {
+                k += 1;
+                if k % 2 == 0 {
+                    Reply::Located(Estimate {
+                        status: EstimateStatus::NoDepth,
+                        goal: None,
+                        fused_target: None,
+                        range_m: 0.0,
+                    })
+                } else {
+                    located(Pose2::new(2.0, 0.0, 0.0))
+                }
+            }
+            Request::Drive { .. } => {
+                drives += 1;
+                driven(DriveStatus::Moving, 0.5, 2.0)
+            }
+            other => panic!("unexpected {other:?}"),
+        })
+    };
+    for f in 0..4 {
+        let (cmd, _) = cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), &mut flaky);
+        assert_eq!(cmd.twist, Twist::ZERO, "frame {f}: two sightings are not enough");
+    }
+    let (cmd, _) = cycle(&mut m, &p, at(0.8, 0.0, 0.0, 0.0), &mut flaky);
+    assert_eq!((cmd.twist.linear, drives), (0.5, 1), "the third sighting in the window confirms");
+    assert_eq!(events(&mut m).iter().filter(|e| matches!(e, Event::TargetSeen { .. })).count(), 1);
+}
+
+#[test]
 fn a_sighting_without_depth_breaks_the_streak() {
-    let p = ExecutorParams { confirm_frames: 2, ..ExecutorParams::default() };
+    // A window as long as the count demands an unbroken streak.
+    let p = ExecutorParams { confirm_frames: 2, confirm_window: 2, ..ExecutorParams::default() };
     let mut m = mission(vec![find(56, "chair")]);
     let mut k = 0;
     let mut flaky = |r: &Request| -> Result<Reply, StageFailure> {
