@@ -55,8 +55,10 @@ pub struct ExecutorParams {
     /// Frames to hold still and look after each scan turn.
     #[arg(long, default_value_t = 3)]
     pub look_frames: u32,
-    /// Forward search legs after a fruitless look-around, before asking the user.
-    #[arg(long, default_value_t = 1)]
+    /// Forward search legs after a fruitless look-around, before asking the
+    /// user: a target too small to detect from here is looked for again
+    /// from closer (docs/perception.md).
+    #[arg(long, default_value_t = 2)]
     pub search_legs: u32,
     /// Length of one search leg, metres.
     #[arg(long, default_value_t = 2.0)]
@@ -93,7 +95,7 @@ impl Default for ExecutorParams {
             scan_turn_rad: std::f64::consts::FRAC_PI_6,
             scan_turns: 12,
             look_frames: 3,
-            search_legs: 1,
+            search_legs: 2,
             search_leg_m: 2.0,
             stuck_timeout_s: 8.0,
             settle_after_s: 3.0,

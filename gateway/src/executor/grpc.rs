@@ -44,10 +44,11 @@ impl Stages<'_> {
             Request::Perceive { detect } => {
                 let segment = self.segment();
                 let boxes = match detect {
-                    Some((class_id, min_score)) => {
+                    Some((_, min_score)) => {
+                        // Every class: the machine weighs other classes' boxes against the target's.
                         let mut detector = pipeline.detector.clone();
                         let request =
-                            pb::DetectRequest { frame: Some(self.frame.clone()), class_ids: vec![class_id], min_score };
+                            pb::DetectRequest { frame: Some(self.frame.clone()), class_ids: vec![], min_score };
                         let (detected, no_go) = tokio::join!(detector.detect(request), segment);
                         let boxes = detected.map_err(stage("detector"))?.into_inner().boxes;
                         self.no_go = no_go?;

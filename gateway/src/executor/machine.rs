@@ -19,7 +19,14 @@
 //!   target) → confirmed after `confirm_frames` sightings within the last
 //!   `confirm_window` frames (a real detector misses a small or distant
 //!   object in many frames; demanding an unbroken streak would leave it
-//!   unconfirmed — docs/perception.md) → local planner until within d_s. Once a fixed target is confirmed, each frame's
+//!   unconfirmed — docs/perception.md) → local planner until within d_s.
+//!   The detector is asked for every class, and a candidate is confirmed
+//!   only while its sightings outnumber the frames in which a box of another
+//!   class stands where the candidate projects: a detector that takes a
+//!   bicycle for a motorcycle in one frame of five does not send the robot
+//!   to the bicycle. A candidate that the other class outvotes is dropped,
+//!   its place remembered and ignored for the rest of the step, and a new
+//!   track started. Once a fixed target is confirmed, each frame's
 //!   box is the one where the fused target projects (camera model, odometry
 //!   pose), not the one nearest last frame's box: a turning robot shifts the
 //!   image by tens of pixels a frame, and a second chair swinging into view
@@ -72,7 +79,8 @@ pub enum Request {
     /// for a MOVE, turn `move_goal` into an odometry goal.
     StartStep { index: u32, action: Action, desc: String, move_goal: Option<MoveQuery> },
     /// Segment the frame into no-go points (kept by the adapter for this
-    /// frame's `Drive`) and, for a FIND, detect `class_id` at `min_score`,
+    /// frame's `Drive`) and, for a FIND, detect every class at `min_score`
+    /// (the step's `class_id` is the target; the others vote against it),
     /// both at once.
     Perceive { detect: Option<(i32, f32)> },
     /// Which of `boxes` is the person `name`.
@@ -199,6 +207,13 @@ struct FindRun {
     moving: bool,
     /// Sightings of the last frames, newest in bit 0.
     recent: u64,
+    /// Frames (same window) in which another class's box stood where the
+    /// candidate projects.
+    rival: u64,
+    /// Places (odom) of candidates another class outvoted.
+    rejected: Vec<Vector2<f64>>,
+    /// Tracks started for this step (a new one after each rejection).
+    tracks: u32,
     confirmed: bool,
     goal: Option<Goal>,
     /// The fused target (odom) of the latest accepted observation.
@@ -371,6 +386,13 @@ fn box_at(boxes: &[Detection], u: f32, v: f32) -> Option<&Detection> {
             let d = |x: &Detection| (x.center().0 - u).hypot(x.center().1 - v);
             d(a).total_cmp(&d(b))
         })
+}
+
+/// `(u, v)` lies in the middle of `b` (its central half in each direction):
+/// the box shows what stands there, not a neighbour beside it.
+fn centred_on(b: &Detection, u: f32, v: f32) -> bool {
+    let (qx, qy) = ((b.x_max - b.x_min) / 4.0, (b.y_max - b.y_min) / 4.0);
+    (b.x_min + qx..=b.x_max - qx).contains(&u) && (b.y_min + qy..=b.y_max - qy).contains(&v)
 }
 
 /// The box of an unnamed target in this frame: where a confirmed fixed
@@ -613,6 +635,9 @@ impl Mission {
                 d_s,
                 moving: step.action == Action::Follow,
                 recent: 0,
+                rival: 0,
+                rejected: Vec::new(),
+                tracks: 0,
                 confirmed: false,
                 goal: None,
                 fused: None,
@@ -714,7 +739,28 @@ impl Mission {
     }
 
     /// This frame's boxes of the target's class: which one is the target.
-    fn find_box(&mut self, p: &ExecutorParams, boxes: Vec<Detection>) -> Next {
+    fn find_box(&mut self, p: &ExecutorParams, all: Vec<Detection>) -> Next {
+        let Some(f) = self.find() else { return self.hold() };
+        let (boxes, others): (Vec<Detection>, Vec<Detection>) = all.into_iter().partition(|b| b.class_id == f.class_id);
+        // The class vote: does another class's box (and none of the
+        // target's) stand where the unconfirmed candidate projects?
+        let rival = f.person.is_empty()
+            && !f.confirmed
+            && !f.moving
+            && matches!(f.fused.as_ref().and_then(|t| target_view(&self.frame, t)),
+                Some(TargetView::At(u, v)) if others.iter().any(|b| centred_on(b, u, v)) && box_at(&boxes, u, v).is_none());
+        let mask = window_mask(p.confirm_window);
+        let Some(f) = self.find_mut() else { return self.hold() };
+        f.rival = (f.rival << 1 | u64::from(rival)) & mask;
+        if f.rival.count_ones() >= p.confirm_frames && f.rival.count_ones() > f.recent.count_ones() {
+            if let Some(t) = f.fused.take() {
+                tracing::debug!(x = t.x, y = t.y, "candidate outvoted by another class");
+                f.rejected.push(Vector2::new(t.x, t.y));
+            }
+            f.tracks += 1;
+            f.track_key = format!("{}#{}", f.track_key.split('#').next().unwrap_or_default(), f.tracks);
+            (f.recent, f.rival, f.last_center, f.goal) = (0, 0, None, None);
+        }
         let Some(f) = self.find() else { return self.hold() };
         if boxes.is_empty() {
             return self.observed(p, None);
@@ -749,6 +795,11 @@ impl Mission {
         let stamp = self.frame.stamp;
         let index = self.index as u32;
         let Some(f) = self.find_mut() else { return self.hold() };
+        // A sighting where an outvoted candidate stood is that object again.
+        let observation = observation.filter(|(_, _, _, est)| {
+            est.fused_target
+                .is_none_or(|t| !f.rejected.iter().any(|r| (r - Vector2::new(t.x, t.y)).norm() < REJECTED_M))
+        });
         let mut seen = None;
         match observation {
             Some((b, identity, similarity, est)) => {
@@ -758,7 +809,10 @@ impl Mission {
                 f.goal = est.goal;
                 f.fused = est.fused_target.or(f.fused);
                 f.last_center = Some(b.center());
-                if !f.confirmed && f.recent.count_ones() >= p.confirm_frames {
+                if !f.confirmed
+                    && f.recent.count_ones() >= p.confirm_frames
+                    && f.recent.count_ones() > f.rival.count_ones()
+                {
                     f.confirmed = true;
                     f.explore = Explore::Idle;
                     seen = Some(Event::TargetSeen {
@@ -1060,3 +1114,6 @@ fn window_mask(window: u32) -> u64 {
         w => (1u64 << w) - 1,
     }
 }
+
+/// A sighting this close to an outvoted candidate's place is that object, m.
+const REJECTED_M: f64 = 0.75;

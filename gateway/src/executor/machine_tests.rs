@@ -81,6 +81,10 @@ fn chair(x_min: f32, x_max: f32) -> Detection {
     Detection { x_min, y_min: 40.0, x_max, y_max: 80.0, class_id: 56, score: 0.9, label: "chair".into() }
 }
 
+fn person(x_min: f32, x_max: f32) -> Detection {
+    Detection { class_id: 0, label: "person".into(), ..chair(x_min, x_max) }
+}
+
 fn located(goal: Pose2) -> Reply {
     Reply::Located(Estimate {
         status: EstimateStatus::Ok,
@@ -263,6 +267,34 @@ fn intermittent_sightings_confirm_within_the_window_and_misses_do_not_count() {
 }
 
 #[test]
+fn a_candidate_another_class_outvotes_is_dropped_and_its_place_ignored() {
+    // One chair sighting, then three frames in which the detector calls the
+    // same object a couch: the chair candidate is dropped; later chair boxes
+    // at that place are that couch again and never confirm.
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![find(56, "chair")]);
+    let couch = Detection { class_id: 57, label: "couch".into(), ..chair(70.0, 95.0) };
+    let mut keys = Vec::new();
+    for f in 0..9 {
+        let boxes = if (1..4).contains(&f) { vec![couch.clone()] } else { vec![chair(70.0, 95.0)] };
+        cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), |r| {
+            Ok(match r {
+                Request::StartStep { .. } => Reply::StepStarted { goal: None },
+                Request::Perceive { .. } => Reply::Perceived { boxes: boxes.clone() },
+                Request::Locate { track_key, .. } => {
+                    keys.push(track_key.clone());
+                    located(Pose2::new(2.0, 0.0, 0.0))
+                }
+                other => panic!("frame {f}: never confirmed, so never driven: {other:?}"),
+            })
+        });
+    }
+    assert!(!events(&mut m).iter().any(|e| matches!(e, Event::TargetSeen { .. })));
+    assert_eq!(keys.len(), 6, "located in every frame with a chair box");
+    assert!(!keys[0].contains('#') && keys[1..].iter().all(|k| k.ends_with("#1")), "{keys:?}");
+}
+
+#[test]
 fn a_sighting_without_depth_breaks_the_streak() {
     // A window as long as the count demands an unbroken streak.
     let p = ExecutorParams { confirm_frames: 2, confirm_window: 2, ..ExecutorParams::default() };
@@ -302,7 +334,7 @@ fn a_named_person_is_located_in_the_box_reid_matches_only() {
     cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), |r| {
         Ok(match r {
             Request::StartStep { .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(10.0, 30.0), chair(70.0, 95.0)] },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![person(10.0, 30.0), person(70.0, 95.0)] },
             Request::Identify { boxes, name } => {
                 assert_eq!((boxes.len(), name.as_str()), (2, "Alice"));
                 Reply::Identified(vec![
@@ -546,7 +578,7 @@ fn a_follow_stays_with_its_target_until_its_time_is_up() {
     let near = |r: &Request| -> Result<Reply, StageFailure> {
         Ok(match r {
             Request::StartStep { .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![person(70.0, 95.0)] },
             Request::Locate { moving, .. } => {
                 assert!(moving);
                 located(Pose2::new(1.0, 0.0, 0.0))
