@@ -66,10 +66,8 @@ pub fn table_v_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> Str
             None => sc.title.clone(),
         };
         let stop = match p {
-            Some(p) => {
-                format!("{:.2} ± {:.2} ({:.2} ± {:.2})", s.stop_abs_m, s.stop_abs_std_m, p.drift_m, p.drift_std_m)
-            }
-            None => format!("{:.2} ± {:.2} (—)", s.stop_abs_m, s.stop_abs_std_m),
+            Some(p) => format!("{} ({:.2} ± {:.2})", stop_text(s), p.drift_m, p.drift_std_m),
+            None => format!("{} (—)", stop_text(s)),
         };
         let _ = writeln!(
             out,
@@ -123,6 +121,11 @@ pub fn table_iv_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> St
     out
 }
 
+/// Mean |stopping error| ± σ over the completed trials; "—" when none completed.
+fn stop_text(s: &Summary) -> String {
+    if s.completed == 0 { "—".into() } else { format!("{:.2} ± {:.2}", s.stop_abs_m, s.stop_abs_std_m) }
+}
+
 /// Every (scenario, mode) with every figure, ours only.
 pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String {
     let mut out = String::new();
@@ -134,7 +137,7 @@ pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String
             let failures: Vec<String> = s.failures.iter().map(|(k, v)| format!("{k} {v}")).collect();
             let _ = writeln!(
                 out,
-                "| {} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {:.2} ± {:.2} | {:+.2} | {:.2} | {:.1} | {} | {} |",
+                "| {} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {} | {:+.2} | {:.2} | {:.1} | {} | {} |",
                 sc.title,
                 mode,
                 s.trials,
@@ -147,8 +150,7 @@ pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String
                 s.hard_time_pct,
                 s.path_m,
                 s.completed,
-                s.stop_abs_m,
-                s.stop_abs_std_m,
+                stop_text(s),
                 s.stop_bias_m,
                 s.final_error_m,
                 s.mission_s,

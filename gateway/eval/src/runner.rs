@@ -416,6 +416,9 @@ async fn run_mission(
     let mut after_submit: Vec<StepRecord> = Vec::new();
     let mut finished_stamp = f64::INFINITY;
     let mut cancelled_for_time = false;
+    // The frame that ran past the budget: a timed-out trial ends there, not
+    // at whichever later frame the cancellation happened to land on.
+    let mut time_cut = None;
     let mut agent_done = false;
     loop {
         tokio::select! {
@@ -473,16 +476,19 @@ async fn run_mission(
             }
             s = rx.recv(), if !agent_done => {
                 let Some(s) = s else { agent_done = true; continue };
-                let elapsed = after_submit.first().map(|f: &StepRecord| s.stamp - f.stamp).unwrap_or(0.0);
+                let (stamp, elapsed) =
+                    (s.stamp, after_submit.first().map(|f: &StepRecord| s.stamp - f.stamp).unwrap_or(0.0));
                 after_submit.push(s);
                 if elapsed > budget_s && !cancelled_for_time {
                         cancelled_for_time = true;
+                        time_cut = Some(stamp);
                         watched.reason = format!("no result within {budget_s} s of sensor time");
                         match missions.cancel_mission(pb::CancelMissionRequest { mission_id: mission_id.clone() }).await {
                             Ok(_) => {}
                             // It finished on the same frame: its Finished event is on the way.
                             Err(s) if s.code() == tonic::Code::FailedPrecondition => {
                                 cancelled_for_time = false;
+                                time_cut = None;
                                 watched.reason.clear();
                             }
                             Err(s) => anyhow::bail!("CancelMission({mission_id}): {:?}: {}", s.code(), s.message()),
@@ -521,7 +527,11 @@ async fn run_mission(
     while let Ok(s) = rx.try_recv() {
         after_submit.push(s);
     }
-    Ok((watched, mission_frames(after_submit, &mission_id, finished_stamp)))
+    let mut frames = mission_frames(after_submit, &mission_id, finished_stamp);
+    if let Some(cut) = time_cut.filter(|_| watched.outcome == Some(Outcome::TimedOut)) {
+        frames.retain(|s| s.stamp <= cut + 1e-9);
+    }
+    Ok((watched, frames))
 }
 
 /// The frames of one mission: those answered under its id or, should the

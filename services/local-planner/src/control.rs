@@ -30,11 +30,20 @@
 //!   and slows within `slow_down_distance` of the goal, never below
 //!   `creep_speed` and never faster than covers the distance left to the
 //!   goal in one frame period, so it stops on the goal rather than past it.
+//! - Rotating in place sweeps a disc: the Husky's corners reach
+//!   `sweep_radius_m` (its half-diagonal, √(0.495² + 0.335²) = 0.60 m, plus
+//!   0.05 m). Before any turn in place the disc must be free of obstacle
+//!   cells (this frame's or remembered); if it is not, the robot first
+//!   moves straight away from the nearest such cell at `escape_speed`
+//!   (backwards only where no remembered cell lies behind it), and reports
+//!   BLOCKED where it can do neither, rather than grinding a corner along a
+//!   parked car during a look-around.
 //! - Obstacle memory: the camera sees ±43°, so an obstacle leaves the view as
 //!   soon as the robot turns away from it, and a plan made without it would
 //!   turn straight back. Cells of recent frames (`memory_s`, 3 s of sensor
-//!   time) are kept in `odom` and merged into the plan while they are outside
-//!   the current view (inside it, the current frame is the truth, so moved
+//!   time; `near_memory_s`, 30 s, for cells within `near_memory_m`, 1 m, of
+//!   the robot, which a turn in place must not forget) are kept in `odom` and
+//!   merged into the plan while they are outside the current view (inside it, the current frame is the truth, so moved
 //!   obstacles are forgotten). The memory is dropped when the odometry jumps
 //!   (a reset at a reached subgoal) or time runs backwards.
 //! - No progress: while moving, if the distance to the goal has not dropped
@@ -82,6 +91,16 @@ pub struct FollowParams {
     pub memory_near_m: f64,
     /// Remembered cells farther than this are dropped, m.
     pub memory_range_m: f64,
+    /// Cells this close to the robot are remembered for `near_memory_s`, m.
+    pub near_memory_m: f64,
+    pub near_memory_s: f64,
+    /// Radius of the disc a turn in place sweeps (half-diagonal + margin), m.
+    pub sweep_radius_m: f64,
+    /// Half the robot's length and width, m (Husky A200: 0.99 m × 0.67 m).
+    pub half_length_m: f64,
+    pub half_width_m: f64,
+    /// Speed of the straight move that clears the sweep disc, m/s.
+    pub escape_speed: f64,
 }
 
 impl Default for FollowParams {
@@ -107,6 +126,12 @@ impl Default for FollowParams {
             memory_s: 3.0,
             memory_near_m: 0.6,
             memory_range_m: 4.25,
+            near_memory_m: 1.0,
+            near_memory_s: 30.0,
+            sweep_radius_m: 0.65,
+            half_length_m: 0.495,
+            half_width_m: 0.335,
+            escape_speed: 0.15,
         }
     }
 }
@@ -196,6 +221,37 @@ pub struct RobotState {
     scratch: Scratch,
 }
 
+/// What a turn in place must do first when its sweep disc is not free.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Sweep {
+    /// Move straight at this speed (m/s, negative: backwards) to clear it.
+    Escape(f64),
+    /// The way out is taken too.
+    Blocked,
+}
+
+impl RobotState {
+    /// `None` when a turn in place is free to go; otherwise how to clear the
+    /// disc first: a straight move away from the nearest cell in it, or
+    /// BLOCKED when the way out is taken too.
+    fn sweep(&self, p: &FollowParams) -> Option<Sweep> {
+        let r2 = (p.sweep_radius_m * p.sweep_radius_m) as f32;
+        let nearest = self
+            .cloud
+            .cells
+            .iter()
+            .filter(|c| c.x * c.x + c.y * c.y < r2)
+            .min_by(|a, b| (a.x * a.x + a.y * a.y).total_cmp(&(b.x * b.x + b.y * b.y)))?;
+        // Away from it along the robot's axis; the way out must be free for
+        // the robot's half-length plus the sweep's margin (at least 0.1 m).
+        let dir = if nearest.x > 0.0 { -1.0_f32 } else { 1.0 };
+        let reach = (p.half_length_m + (p.sweep_radius_m - p.half_length_m).max(0.1)) as f32;
+        let lane = p.half_width_m as f32 + 0.05;
+        let taken = self.cloud.cells.iter().any(|c| c.x * dir > 0.0 && c.x * dir < reach && c.y.abs() < lane);
+        Some(if taken { Sweep::Blocked } else { Sweep::Escape(f64::from(dir) * p.escape_speed) })
+    }
+}
+
 fn clamp_turn(rate: f64, error: f64, p: &FollowParams, dt: f64) -> f64 {
     // Never turn past the target bearing within one frame period, nor faster
     // than lets the robot still stop on it.
@@ -210,10 +266,11 @@ impl RobotState {
         let mut cells = cloud.cells.clone();
         let mut kept = Vec::with_capacity(self.memory.len() + cloud.cells.len());
         for m in self.memory.drain(..) {
-            if input.stamp - m.stamp > p.memory_s {
+            let b = input.pose.inverse_transform(&m.at);
+            let age = input.stamp - m.stamp;
+            if age > p.memory_s && !(age <= p.near_memory_s && b.norm() <= p.near_memory_m) {
                 continue;
             }
-            let b = input.pose.inverse_transform(&m.at);
             if b.norm() > p.memory_range_m || input.view.sees(&b, p.memory_near_m) {
                 continue;
             }
@@ -283,6 +340,14 @@ impl RobotState {
             if yaw_error.abs() < goal.yaw_tolerance {
                 return stop(self, out, StepStatus::Reached);
             }
+            match self.sweep(p) {
+                Some(Sweep::Blocked) => return stop(self, out, StepStatus::Blocked),
+                Some(Sweep::Escape(v)) => {
+                    out.linear = v;
+                    return stop(self, out, StepStatus::Rotating);
+                }
+                None => {}
+            }
             out.angular = clamp_turn(p.rotate_gain * yaw_error, yaw_error, p, dt);
             return stop(self, out, StepStatus::Rotating);
         }
@@ -298,6 +363,14 @@ impl RobotState {
         self.rotating = bearing.abs() > exit;
         self.aligned |= !self.rotating;
         if self.rotating {
+            match self.sweep(p) {
+                Some(Sweep::Blocked) => return stop(self, out, StepStatus::Blocked),
+                Some(Sweep::Escape(v)) => {
+                    out.linear = v;
+                    return stop(self, out, StepStatus::Rotating);
+                }
+                None => {}
+            }
             out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p, dt);
             return stop(self, out, StepStatus::Rotating);
         }
@@ -328,8 +401,10 @@ impl RobotState {
         let dir = look.y.atan2(look.x);
         out.angular = clamp_turn(p.yaw_gain * dir, dir, p, dt);
         // Aim at the middle of the arrival band: one frame's travel never
-        // carries the robot past the goal.
-        let ahead = (goal_base.x - p.arrive_m / 2.0).max(0.0);
+        // carries the robot past the goal. (On a detour, with the goal well
+        // off the heading, the distance to it is what is left.)
+        let left = if bearing.abs() < std::f64::consts::FRAC_PI_4 { goal_base.x } else { distance };
+        let ahead = (left - p.arrive_m / 2.0).max(0.0);
         let target = (speed * (distance / p.slow_down_distance).min(1.0)).max(p.creep_speed).min(ahead / dt);
         let v = if dir.abs() < p.align_threshold {
             (self.last_speed + p.max_accel * dt).min(target)

@@ -341,3 +341,48 @@ fn obstacles_out_of_view_are_remembered_for_a_while() {
     assert_eq!(step(3.2, 0.0, &seen), 1);
     assert_eq!(step(3.4, 0.0, &empty), 0);
 }
+
+#[test]
+fn a_turn_in_place_beside_a_parked_car_first_backs_away_until_its_corners_clear_it() {
+    // A car's corner 0.59 m from the robot's centre, front left: turning
+    // left on the spot would swing the Husky's front corner (0.60 m out)
+    // into it.
+    let mut world = World::default();
+    world.add_box(0.55, 0.2, 2.5, 2.2, 1.5);
+    let goal =
+        GoalSpec { pose: Pose2::new(0.0, 0.0, 1.5), position_tolerance: 0.5, yaw_tolerance: 0.2, rotation_only: true };
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal, 80);
+    let first = &run.outputs[0];
+    assert!(first.linear < 0.0 && first.angular == 0.0, "backs away first: {first:?}");
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached);
+    for (pose, out) in run.poses.iter().zip(&run.outputs) {
+        if out.angular != 0.0 {
+            let d = distance_to_rect(pose, 0.55, 0.2, 2.5, 2.2);
+            assert!(d >= 0.6, "turned with the car {d:.2} m from the centre at {pose:?}");
+        }
+    }
+}
+
+#[test]
+fn a_turn_in_place_with_no_way_out_is_blocked_not_ground_through() {
+    let p = FollowParams::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    // Something 0.55 m ahead and something 0.6 m behind, both in the sweep.
+    let mut points = Vec::new();
+    for z in [0.2, 0.4, 0.6] {
+        for y in [-0.1, 0.0, 0.1] {
+            points.push([0.55, y, z]);
+            points.push([-0.6, y, z]);
+        }
+    }
+    let cloud = builder.from_points(&points, &[]);
+    let goal =
+        GoalSpec { pose: Pose2::new(0.0, 0.0, 1.5), position_tolerance: 0.5, yaw_tolerance: 0.2, rotation_only: true };
+    let mut state = RobotState::default();
+    let out = state.step(
+        planner(),
+        &p,
+        StepInput { stamp: 0.0, pose: Pose2::new(0.0, 0.0, 0.0), goal, cloud: &cloud, max_speed: 0.0, view: VIEW },
+    );
+    assert_eq!((out.status, out.linear, out.angular), (StepStatus::Blocked, 0.0, 0.0));
+}

@@ -203,7 +203,7 @@ async fn goal_behind_rotates_and_goal_here_is_reached() {
     assert!(r.heading_error.abs() > 1.0);
     let r = s
         .client
-        .plan_step(request("husky-1", frame(&vec![], at(1.0, 1.0, 0.0), 1.2), goal(1.1, 1.1)))
+        .plan_step(request("husky-1", frame(&vec![], at(1.0, 1.0, 0.0), 1.2), goal(1.0, 1.1)))
         .await
         .unwrap()
         .into_inner();

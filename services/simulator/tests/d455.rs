@@ -77,7 +77,7 @@ start = [0.0, 0.0, 0.0]
 depth_noise_k = 0.0
 [[obstacles]]
 name = "far wall"
-polygon = [[6.3, -15.0], [6.32, -15.0], [6.32, 15.0], [6.3, 15.0]]
+polygon = [[5.8, -15.0], [5.82, -15.0], [5.82, 15.0], [5.8, 15.0]]
 height = 3.0
 color = [150, 150, 150]
 [[objects]]
@@ -95,11 +95,13 @@ fn a_near_edge_leaves_a_stereo_occlusion_hole_on_its_left() {
     let mut sim = Simulator::new(world(NEAR_AND_FAR), 1);
     let f = sim.render();
     let cam = sim.camera().clone();
-    let v = (cam.cy + 0.3 * cam.fy / 2.3) as u32; // a row through the box and the wall
+    // The row at the camera's height: it meets the box (1.5 m high) at 2.3 m
+    // and the wall (3 m high, inside the reliable range) at 5.8 m, never the floor.
+    let v = cam.cy as u32;
     let row: Vec<u16> = (0..f.width).map(|u| f.pixel(u, v).1).collect();
     // The box's left edge: first column (from the left) with the box's depth.
     let edge = row.iter().position(|&d| (2000..2400).contains(&d)).expect("the box is in view");
-    let band = (cam.fx * 0.095 * (1.0 / 2.3 - 1.0 / 6.0)).round() as usize;
+    let band = (cam.fx * 0.095 * (1.0 / 2.3 - 1.0 / 5.8)).round() as usize;
     assert!(band >= 5, "{band}");
     assert!(row[edge - band..edge].iter().all(|&d| d == 0), "{:?}", &row[edge - band - 2..edge + 1]);
     assert!(row[edge - band - 2] > 5000, "the wall keeps its depth beyond the band: {:?}", &row[edge - band - 3..edge]);
@@ -139,7 +141,7 @@ color = [40, 160, 40]
 [[objects]]
 name = "in front"
 class_id = 13
-position = [3.3, -0.55]
+position = [3.3, -0.35]
 shape = "box"
 size = [0.2, 0.4]
 height = 2.0
@@ -147,7 +149,7 @@ color = [90, 60, 30]
 [[objects]]
 name = "at the border"
 class_id = 0
-position = [2.3, 2.4]
+position = [2.3, 2.0]
 shape = "box"
 size = [0.4, 0.6]
 height = 1.7
