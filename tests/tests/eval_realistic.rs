@@ -16,7 +16,7 @@ fn args(out: &std::path::Path) -> vlnav_eval::EvalArgs {
     vlnav_eval::EvalArgs {
         trials: Some(2),
         seed: 11,
-        scenarios: vec!["precise".into(), "symmetric".into()],
+        scenarios: vec!["precise".into(), "symmetric".into(), "garage".into()],
         modes: vec![Mode::Hybrid],
         out: out.to_path_buf(),
         jobs: 4,

@@ -39,6 +39,8 @@ pub struct PlotScene {
     pub odom_path: Vec<Point2>,
     pub subgoals: Vec<Point2>,
     pub target_estimates: Vec<Point2>,
+    /// Where the robot was while touching something (hard contact).
+    pub hard_contacts: Vec<Point2>,
 }
 
 struct Frame {
@@ -223,6 +225,21 @@ pub fn render_svg(scene: &PlotScene) -> String {
             points_attr(&frame, &scene.true_path)
         );
     }
+    for p in &scene.hard_contacts {
+        let (x, y) = frame.px(*p);
+        let _ = writeln!(
+            s,
+            r##"<path class="hard-contact" d="M{:.1} {:.1}L{:.1} {:.1}M{:.1} {:.1}L{:.1} {:.1}" stroke="#cc0000" stroke-width="2"/>"##,
+            x - 4.0,
+            y - 4.0,
+            x + 4.0,
+            y + 4.0,
+            x - 4.0,
+            y + 4.0,
+            x + 4.0,
+            y - 4.0
+        );
+    }
     for p in &scene.target_estimates {
         let (x, y) = frame.px(*p);
         let _ = writeln!(
@@ -260,7 +277,7 @@ pub fn render_svg(scene: &PlotScene) -> String {
         ly += 16.0;
     }
     ly -= 16.0;
-    let items: [(&str, &str); 8] = [
+    let items: [(&str, &str); 9] = [
         (r##"<line x1="0" y1="0" x2="24" y2="0" stroke="#1155cc" stroke-width="2.5"/>"##, "true path"),
         (
             r##"<line x1="0" y1="0" x2="24" y2="0" stroke="#e69138" stroke-width="2" stroke-dasharray="6 4"/>"##,
@@ -268,6 +285,7 @@ pub fn render_svg(scene: &PlotScene) -> String {
         ),
         (r##"<rect x="7" y="-4.5" width="9" height="9" fill="#cc0000"/>"##, "subgoal reached"),
         (r##"<circle cx="12" cy="0" r="3" fill="#f1c232" stroke="#7f6000"/>"##, "target estimate"),
+        (r##"<path d="M8 -4L16 4M8 4L16 -4" stroke="#cc0000" stroke-width="2"/>"##, "hard contact"),
         (r##"<rect x="0" y="-6" width="24" height="12" fill="#444"/>"##, "structure"),
         (r##"<rect x="0" y="-6" width="24" height="12" fill="#cc0000" fill-opacity="0.35"/>"##, "no-go zone"),
         (r##"<circle cx="12" cy="0" r="6" fill="#6aa84f"/>"##, "object"),

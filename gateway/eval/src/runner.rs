@@ -318,6 +318,7 @@ fn plot_scene(
     scene.success_radius = record.success_radius_m;
     scene.true_path = track.iter().map(|s| s.pose.position().into()).collect();
     scene.odom_path = track.iter().map(|s| s.odom_in_world().position().into()).collect();
+    scene.hard_contacts = track.iter().filter(|s| s.hard_contact).map(|s| s.pose.position().into()).collect();
     for (stamp, goal) in &watched.subgoals {
         if let Some(o) = origin_at(track, *stamp) {
             scene.subgoals.push(o.transform(&Point2::new(goal.x, goal.y).into()).into());

@@ -22,7 +22,8 @@
 //!   unconfirmed — docs/perception.md) → local planner until within d_s.
 //!   The detector is asked for every class, and a candidate is confirmed
 //!   only while its sightings outnumber the frames in which a box of another
-//!   class stands where the candidate projects: a detector that takes a
+//!   class stands where the candidate projects, counted over a full window
+//!   of `confirm_window` frames from its first sighting: a detector that takes a
 //!   bicycle for a motorcycle in one frame of five does not send the robot
 //!   to the bicycle. A candidate that the other class outvotes is dropped,
 //!   its place remembered and ignored for the rest of the step, and a new
@@ -210,6 +211,9 @@ struct FindRun {
     /// Frames (same window) in which another class's box stood where the
     /// candidate projects.
     rival: u64,
+    /// Frames the current candidate has been watched for (the vote needs a
+    /// full window before it may confirm).
+    watched: u32,
     /// Places (odom) of candidates another class outvoted.
     rejected: Vec<Vector2<f64>>,
     /// Tracks started for this step (a new one after each rejection).
@@ -636,6 +640,7 @@ impl Mission {
                 moving: step.action == Action::Follow,
                 recent: 0,
                 rival: 0,
+                watched: 0,
                 rejected: Vec::new(),
                 tracks: 0,
                 confirmed: false,
@@ -759,7 +764,7 @@ impl Mission {
             }
             f.tracks += 1;
             f.track_key = format!("{}#{}", f.track_key.split('#').next().unwrap_or_default(), f.tracks);
-            (f.recent, f.rival, f.last_center, f.goal) = (0, 0, None, None);
+            (f.recent, f.rival, f.watched, f.last_center, f.goal) = (0, 0, 0, None, None);
         }
         let Some(f) = self.find() else { return self.hold() };
         if boxes.is_empty() {
@@ -801,6 +806,9 @@ impl Mission {
                 .is_none_or(|t| !f.rejected.iter().any(|r| (r - Vector2::new(t.x, t.y)).norm() < REJECTED_M))
         });
         let mut seen = None;
+        if f.fused.is_some() || observation.is_some() {
+            f.watched = f.watched.saturating_add(1);
+        }
         match observation {
             Some((b, identity, similarity, est)) => {
                 f.unseen = 0;
@@ -809,7 +817,12 @@ impl Mission {
                 f.goal = est.goal;
                 f.fused = est.fused_target.or(f.fused);
                 f.last_center = Some(b.center());
+                // A fixed, unnamed target is put to the class vote over a full
+                // window first; a named person (ReID decides) or a moving
+                // target is confirmed by its sightings alone.
+                let voted = !f.person.is_empty() || f.moving || f.watched >= p.confirm_window;
                 if !f.confirmed
+                    && voted
                     && f.recent.count_ones() >= p.confirm_frames
                     && f.recent.count_ones() > f.rival.count_ones()
                 {

@@ -191,7 +191,7 @@ fn a_move_after_a_move_turns_from_that_moves_course_not_the_arrival_heading() {
 
 #[test]
 fn a_target_is_confirmed_after_consecutive_sightings_then_approached() {
-    let p = ExecutorParams { confirm_frames: 3, ..ExecutorParams::default() };
+    let p = ExecutorParams { confirm_frames: 3, confirm_window: 3, ..ExecutorParams::default() };
     let mut m = mission(vec![find(56, "chair")]);
     let goal = Pose2::new(2.0, 0.0, 0.0);
     let mut drives = 0;
@@ -229,7 +229,8 @@ fn a_target_is_confirmed_after_consecutive_sightings_then_approached() {
 #[test]
 fn intermittent_sightings_confirm_within_the_window_and_misses_do_not_count() {
     // A detector that sees the chair every other frame (and, between, a box
-    // without depth): 3 sightings within 8 frames confirm on the 5th frame.
+    // without depth): the class vote watches a full window of 8 frames, and
+    // the first sighting after it (the 9th frame, the 5th sighting) confirms.
     let p = ExecutorParams { confirm_frames: 3, confirm_window: 8, ..ExecutorParams::default() };
     let mut m = mission(vec![find(56, "chair")]);
     let (mut k, mut drives) = (0, 0);
@@ -257,12 +258,12 @@ fn intermittent_sightings_confirm_within_the_window_and_misses_do_not_count() {
             other => panic!("unexpected {other:?}"),
         })
     };
-    for f in 0..4 {
+    for f in 0..8 {
         let (cmd, _) = cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), &mut flaky);
-        assert_eq!(cmd.twist, Twist::ZERO, "frame {f}: two sightings are not enough");
+        assert_eq!(cmd.twist, Twist::ZERO, "frame {f}: still watching");
     }
-    let (cmd, _) = cycle(&mut m, &p, at(0.8, 0.0, 0.0, 0.0), &mut flaky);
-    assert_eq!((cmd.twist.linear, drives), (0.5, 1), "the third sighting in the window confirms");
+    let (cmd, _) = cycle(&mut m, &p, at(1.6, 0.0, 0.0, 0.0), &mut flaky);
+    assert_eq!((cmd.twist.linear, drives), (0.5, 1), "confirmed once the window is full");
     assert_eq!(events(&mut m).iter().filter(|e| matches!(e, Event::TargetSeen { .. })).count(), 1);
 }
 
