@@ -64,7 +64,7 @@ fn tables(c: &mut Criterion) {
     c.bench_function("summarise + markdown + csv (1050 trials)", |b| {
         b.iter(|| {
             let sums = vlnav_eval::aggregate::summarise(black_box(&records));
-            let md = vlnav_eval::report::markdown(&refs, &sums, 1, 50, "realistic");
+            let md = vlnav_eval::report::markdown(&refs, &sums, 1, 50, "realistic", None);
             let csv = vlnav_eval::report::trials_csv(&records).unwrap();
             black_box((md, csv))
         })

@@ -90,6 +90,11 @@ pub struct EvalArgs {
     /// truth, an upper bound) or `neural` (the real networks; slow on CPU).
     #[arg(long, env = "VLNAV_PERCEPTION", value_enum, default_value_t = PerceptionMode::Realistic)]
     pub perception: PerceptionMode,
+    /// The output directory of another run (its summary.csv and report.md),
+    /// whose figures the tables show in brackets beside this run's: for
+    /// example an `--perception oracle` run, the upper bound.
+    #[arg(long, env = "VLNAV_EVAL_BESIDE")]
+    pub beside: Option<PathBuf>,
 }
 
 impl Default for EvalArgs {
@@ -109,6 +114,7 @@ impl Default for EvalArgs {
             stall_timeout_s: 60.0,
             no_progress: false,
             perception: PerceptionMode::Realistic,
+            beside: None,
         }
     }
 }
@@ -250,7 +256,8 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
     plots.extend(layouts);
 
     let summaries = aggregate::summarise(&records);
-    let markdown = report::markdown(&refs, &summaries, args.seed, trials, args.perception.as_str());
+    let beside = args.beside.as_deref().map(report::Beside::load).transpose()?;
+    let markdown = report::markdown(&refs, &summaries, args.seed, trials, args.perception.as_str(), beside.as_ref());
     let summary_csv = report::summary_csv(&refs, &summaries)?;
     let trials_csv = report::trials_csv(&records)?;
     for (name, body) in [("report.md", &markdown), ("summary.csv", &summary_csv), ("trials.csv", &trials_csv)] {

@@ -344,6 +344,7 @@ mod tests {
             odom_path: vec![Point2::new(0.0, 0.0), Point2::new(6.5, 0.3)],
             subgoals: vec![Point2::new(6.6, 0.1)],
             target_estimates: vec![Point2::new(8.1, 0.1), Point2::new(7.9, -0.1)],
+            hard_contacts: vec![Point2::new(6.6, 0.1)],
         }
     }
 
@@ -358,6 +359,7 @@ mod tests {
             assert!(svg.contains(&format!("class=\"{class}\"")), "missing {class}");
         }
         assert_eq!(svg.matches("class=\"target-estimate\"").count(), 2);
+        assert_eq!(svg.matches("class=\"hard-contact\"").count(), 1);
         assert_eq!(svg.matches("class=\"object\"").count(), 2, "a circle and an outline");
         assert!(svg.contains("Indoor &lt;trial 0&gt;"), "titles are escaped");
     }

@@ -5,6 +5,8 @@
 
 use std::fmt::Write as _;
 
+use serde::Deserialize;
+
 use crate::aggregate::Summary;
 use crate::metrics::{Mode, TrialRecord};
 use crate::paper;
@@ -45,6 +47,70 @@ fn pair(ours: f64, paper: Option<f64>, decimals: usize) -> String {
     }
 }
 
+/// "ours [beside] (paper)": `pair` with the other run's figure in brackets.
+fn triple(ours: f64, beside: Option<Option<f64>>, paper: Option<f64>, decimals: usize) -> String {
+    match beside {
+        None => pair(ours, paper, decimals),
+        Some(b) => {
+            let b = b.map_or("—".to_string(), |b| format!("{b:.decimals$}"));
+            let p = paper.map_or("—".to_string(), |p| format!("{p:.decimals$}"));
+            format!("{ours:.decimals$} [{b}] ({p})")
+        }
+    }
+}
+
+/// Another run's figures per (scenario, mode), read back from its
+/// `summary.csv`, shown in brackets beside this run's (`--beside`).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Beside {
+    /// What the other run was (its perception mode, from its report.md).
+    pub label: String,
+    rows: Vec<BesideRow>,
+}
+
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+struct BesideRow {
+    scenario: String,
+    mode: String,
+    success_pct: f64,
+    soft_trials_pct: f64,
+    hard_trials_pct: f64,
+    completed: u32,
+    stop_abs_m: f64,
+    stop_abs_std_m: f64,
+}
+
+impl Beside {
+    /// Reads `dir/summary.csv` (and the perception named in `dir/report.md`).
+    pub fn load(dir: &std::path::Path) -> anyhow::Result<Self> {
+        use anyhow::Context;
+        let path = dir.join("summary.csv");
+        let text = std::fs::read_to_string(&path).with_context(|| {
+            format!("--beside: cannot read {} (the output directory of another run)", path.display())
+        })?;
+        let mut rows = Vec::new();
+        for row in csv::Reader::from_reader(text.as_bytes()).deserialize() {
+            rows.push(row.with_context(|| format!("--beside: {} is not a vlnav eval summary", path.display()))?);
+        }
+        let label = std::fs::read_to_string(dir.join("report.md"))
+            .ok()
+            .and_then(|r| r.split('`').nth(1).map(str::to_string))
+            .unwrap_or_else(|| dir.display().to_string());
+        Ok(Self { label, rows })
+    }
+
+    fn row(&self, scenario: &str, mode: Mode) -> Option<&BesideRow> {
+        self.rows.iter().find(|r| r.scenario == scenario && r.mode == mode.as_str())
+    }
+
+    fn stop(&self, scenario: &str, mode: Mode) -> String {
+        match self.row(scenario, mode) {
+            Some(r) if r.completed > 0 => format!("{:.2} ± {:.2}", r.stop_abs_m, r.stop_abs_std_m),
+            _ => "—".into(),
+        }
+    }
+}
+
 fn slack_text(s: &Summary) -> String {
     let v: Vec<String> = s.slack_m.iter().map(|x| format!("{x:.2}")).collect();
     if v.is_empty() { "—".into() } else { v.join("/") }
@@ -52,7 +118,7 @@ fn slack_text(s: &Summary) -> String {
 
 /// Table V analogue: one row per scenario run in hybrid mode, every cell
 /// "ours (paper)".
-pub fn table_v_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String {
+pub fn table_v_markdown(scenarios: &[ScenarioRef], summaries: &[Summary], beside: Option<&Beside>) -> String {
     let mut out = String::new();
     out.push_str(
         "| Environment (paper row) | Trials | Success % | Slack (m) | Success % at 0.25 m | Trials with soft collision % | Trials with hard collision % | Avg. path (m) | Stopping error (m) | Mission time (s) | Time in soft / hard contact % |\n",
@@ -65,20 +131,25 @@ pub fn table_v_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> Str
             Some(p) => format!("{} ({})", sc.title, p.environment),
             None => sc.title.clone(),
         };
+        let other = |f: fn(&BesideRow) -> f64| beside.map(|b| b.row(&sc.name, Mode::Hybrid).map(f));
+        let stop_ours = match beside {
+            Some(b) => format!("{} [{}]", stop_text(s), b.stop(&sc.name, Mode::Hybrid)),
+            None => stop_text(s),
+        };
         let stop = match p {
-            Some(p) => format!("{} ({:.2} ± {:.2})", stop_text(s), p.drift_m, p.drift_std_m),
-            None => format!("{} (—)", stop_text(s)),
+            Some(p) => format!("{stop_ours} ({:.2} ± {:.2})", p.drift_m, p.drift_std_m),
+            None => format!("{stop_ours} (—)"),
         };
         let _ = writeln!(
             out,
             "| {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {:.1} | {:.1} / {:.1} |",
             row_name,
             s.trials,
-            pair(s.success_pct, p.map(|p| p.success_pct), 1),
+            triple(s.success_pct, other(|r| r.success_pct), p.map(|p| p.success_pct), 1),
             slack_text(s),
             s.success_025_pct,
-            pair(s.soft_trials_pct, p.map(|p| p.soft_collision_pct), 1),
-            pair(s.hard_trials_pct, p.map(|p| p.hard_collision_pct), 1),
+            triple(s.soft_trials_pct, other(|r| r.soft_trials_pct), p.map(|p| p.soft_collision_pct), 1),
+            triple(s.hard_trials_pct, other(|r| r.hard_trials_pct), p.map(|p| p.hard_collision_pct), 1),
             pair(s.path_m, p.map(|p| p.path_m), 1),
             stop,
             s.mission_s,
@@ -90,7 +161,7 @@ pub fn table_v_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> Str
 }
 
 /// Table IV analogue: success % per mode, "ours (paper)".
-pub fn table_iv_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String {
+pub fn table_iv_markdown(scenarios: &[ScenarioRef], summaries: &[Summary], beside: Option<&Beside>) -> String {
     let mut out = String::new();
     out.push_str("| Scenario (paper row) | Constraint | Geometric % | Visual % | Hybrid % |\n");
     out.push_str("|---|---|---:|---:|---:|\n");
@@ -98,7 +169,12 @@ pub fn table_iv_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> St
         let Some(key) = sc.paper_table_iv.as_deref() else { continue };
         let p = paper::table_iv(key);
         let cell = |mode: Mode| match find(summaries, &sc.name, mode) {
-            Some(s) => pair(s.success_pct, p.map(|p| p.success_pct(mode)), 1),
+            Some(s) => triple(
+                s.success_pct,
+                beside.map(|b| b.row(&sc.name, mode).map(|r| r.success_pct)),
+                p.map(|p| p.success_pct(mode)),
+                1,
+            ),
             None => match p {
                 Some(p) => format!("not run ({:.1})", p.success_pct(mode)),
                 None => "not run".into(),
@@ -169,21 +245,26 @@ pub fn markdown(
     master_seed: u64,
     trials: u32,
     perception: &str,
+    beside: Option<&Beside>,
 ) -> String {
     let mut out = String::new();
     let _ = writeln!(out, "# vlnav evaluation\n");
     let _ = writeln!(
         out,
-        "Perception `{perception}`, master seed {master_seed}, {trials} trials per scenario and mode. Cells read \"ours (paper)\".\n"
+        "Perception `{perception}`, master seed {master_seed}, {trials} trials per scenario and mode. {}\n",
+        match beside {
+            Some(b) => format!("Cells read \"ours [the same with perception `{}`] (paper)\".", b.label),
+            None => "Cells read \"ours (paper)\".".into(),
+        }
     );
-    let v = table_v_markdown(scenarios, summaries);
+    let v = table_v_markdown(scenarios, summaries, beside);
     if v.lines().count() > 2 {
         let _ = writeln!(
             out,
             "## Table V — success, collisions, path and stopping error per environment (hybrid instructions)\n\n{v}"
         );
     }
-    let iv = table_iv_markdown(scenarios, summaries);
+    let iv = table_iv_markdown(scenarios, summaries, beside);
     if iv.lines().count() > 2 {
         let _ = writeln!(out, "## Table IV — success % per navigation modality\n\n{iv}");
     }
@@ -349,8 +430,8 @@ pub fn trials_csv(records: &[TrialRecord]) -> anyhow::Result<String> {
 mod tests {
     use super::*;
     use crate::aggregate::summarise;
-    use crate::metrics::Outcome;
     use crate::metrics::tests::record;
+    use crate::metrics::{Outcome, Point2};
 
     fn refs() -> Vec<ScenarioRef> {
         vec![
@@ -382,7 +463,7 @@ mod tests {
 
     #[test]
     fn table_v_puts_the_papers_numbers_beside_ours() {
-        let md = table_v_markdown(&refs(), &summarise(&records()));
+        let md = table_v_markdown(&refs(), &summarise(&records()), None);
         let row = md.lines().find(|l| l.starts_with("| Indoor office")).expect(&md);
         assert!(row.contains("| 2 |"), "{row}");
         assert!(row.contains("50.0 (100.0)"), "{row}");
@@ -397,8 +478,33 @@ mod tests {
     }
 
     #[test]
+    fn another_runs_figures_stand_in_brackets_beside_ours() {
+        // The other run: every trial of the fixture a success (an upper bound).
+        let upper: Vec<TrialRecord> = records()
+            .into_iter()
+            .map(|r| TrialRecord { outcome: Outcome::Succeeded, final_position: Point2::new(10.0, 0.0), ..r })
+            .collect();
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("summary.csv"), summary_csv(&refs(), &summarise(&upper)).unwrap()).unwrap();
+        std::fs::write(dir.path().join("report.md"), markdown(&refs(), &summarise(&upper), 7, 2, "oracle", None))
+            .unwrap();
+        let beside = Beside::load(dir.path()).unwrap();
+        assert_eq!(beside.label, "oracle");
+        let md = markdown(&refs(), &summarise(&records()), 7, 2, "realistic", Some(&beside));
+        assert!(md.contains("ours [the same with perception `oracle`] (paper)"), "{md}");
+        let row = md.lines().find(|l| l.starts_with("| Indoor office")).expect(&md);
+        assert!(row.contains("50.0 [100.0] (100.0)"), "{row}");
+        let iv = md.lines().find(|l| l.starts_with("| Featureless corridor (")).expect(&md);
+        assert!(iv.contains("100.0 [100.0] (92.0)") && iv.contains("not run (15.0)"), "{iv}");
+        // A directory without a summary is named in the error.
+        let empty = tempfile::tempdir().unwrap();
+        let e = format!("{:#}", Beside::load(empty.path()).unwrap_err());
+        assert!(e.contains("--beside") && e.contains("summary.csv"), "{e}");
+    }
+
+    #[test]
     fn table_iv_marks_modes_not_run() {
-        let md = table_iv_markdown(&refs(), &summarise(&records()));
+        let md = table_iv_markdown(&refs(), &summarise(&records()), None);
         let row = md.lines().find(|l| l.starts_with("| Featureless corridor")).expect(&md);
         assert!(row.contains("100.0 (92.0)"), "{row}");
         assert!(row.contains("not run (15.0)"), "{row}");
@@ -423,8 +529,8 @@ mod tests {
         let rs = records();
         let mut rev = rs.clone();
         rev.reverse();
-        let a = markdown(&refs(), &summarise(&rs), 7, 2, "realistic");
-        let b = markdown(&refs(), &summarise(&rev), 7, 2, "realistic");
+        let a = markdown(&refs(), &summarise(&rs), 7, 2, "realistic", None);
+        let b = markdown(&refs(), &summarise(&rev), 7, 2, "realistic", None);
         assert!(a.contains("Perception `realistic`"));
         assert_eq!(a, b);
         assert_eq!(trials_csv(&rs).unwrap(), trials_csv(&rev).unwrap());

@@ -386,3 +386,17 @@ fn a_turn_in_place_with_no_way_out_is_blocked_not_ground_through() {
     );
     assert_eq!((out.status, out.linear, out.angular), (StepStatus::Blocked, 0.0, 0.0));
 }
+
+#[test]
+fn a_move_ends_on_its_goal_not_at_the_tolerance_circle() {
+    // A MOVE 4 m ahead with the subgoal estimator's 0.25 m tolerance: the
+    // robot stops within a few centimetres of the commanded distance
+    // (odometry), not 0.25 m short of it.
+    let world = World::default();
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(4.0, 0.0, 0.25), 200);
+    assert_eq!(run.outputs.last().unwrap().status, StepStatus::Reached);
+    let end = run.poses.last().unwrap();
+    assert!((end.x - 4.0).abs() <= 0.05 && end.y.abs() <= 0.05, "stopped at {end:?}");
+    // Never past the goal by more than the arrival band.
+    assert!(run.poses.iter().all(|p| p.x <= 4.0 + 0.03), "overshot");
+}
