@@ -46,7 +46,16 @@ impl TestStack {
     pub async fn start(configure: impl FnOnce(&mut UpArgs)) -> Self {
         use_repo_models();
         let data = tempfile::tempdir().expect("temp dir");
-        let mut args = UpArgs { ephemeral_ports: true, data_dir: data.path().to_path_buf(), ..UpArgs::default() };
+        // Oracle perception unless a test asks for another: these tests check
+        // the system's plumbing with a real-time robot, whose course must not
+        // hang on whether a simulated detector happened to miss a target
+        // (the evaluation tests set `realistic` and run in lockstep).
+        let mut args = UpArgs {
+            ephemeral_ports: true,
+            data_dir: data.path().to_path_buf(),
+            perception: vlnav_runtime::perception::PerceptionMode::Oracle,
+            ..UpArgs::default()
+        };
         configure(&mut args);
         let stack = up(&args).await.expect("the stack starts");
         let t = Self { stack, data };

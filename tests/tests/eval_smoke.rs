@@ -7,7 +7,11 @@ use vlnav_e2e::TestStack;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_small_evaluation_runs_through_the_real_services() {
-    let t = TestStack::start(|a| a.no_robot = true).await;
+    let t = TestStack::start(|a| {
+        a.no_robot = true;
+        a.perception = vlnav_eval::PerceptionMode::Realistic;
+    })
+    .await;
     let out = tempfile::tempdir().unwrap();
     let again = tempfile::tempdir().unwrap();
     let args = vlnav_eval::EvalArgs {
@@ -25,6 +29,7 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         stall_timeout_s: 120.0,
         no_progress: true,
         perception: vlnav_eval::PerceptionMode::Realistic,
+        beside: None,
     };
     let rerun = vlnav_eval::EvalArgs { out: again.path().to_path_buf(), jobs: 1, ..args.clone() };
     let report = vlnav_eval::run_eval(args, t.uri()).await.expect("the evaluation runs");

@@ -78,6 +78,7 @@ fn service(c: &mut Criterion) {
             models_dir: models_dir(),
             data_dir: dir.path().join(kind.name()),
             threshold: None,
+            ..vlnav_reid::Options::default()
         };
         let cfg = vlnav_runtime::ServerConfig::default();
         let mut served = rt.block_on(async {
