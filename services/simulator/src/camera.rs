@@ -425,7 +425,9 @@ fn stereo_holes(z: &[f32], w: usize, h: usize, fb: f64, depth_mm: &mut [u16]) {
         let row = &z[v * w..(v + 1) * w];
         for u in 1..w {
             let (far, near) = (row[u - 1], row[u]);
-            if !(near.is_finite() && near > 0.0) || !(far > near * 1.1 + 0.05) {
+            // A step to a nearer surface (far is infinite where nothing was hit).
+            let step = near.is_finite() && near > 0.0 && far > near * 1.1 + 0.05;
+            if !step {
                 continue;
             }
             let inv_far = if far.is_finite() { 1.0 / f64::from(far) } else { 0.0 };
@@ -459,7 +461,7 @@ fn in_view_share(shape: &Shape, origin: Vec2, forward: Vec2, left: Vec2, cam: &C
         u_min = u_min.min(u);
         u_max = u_max.max(u);
     }
-    if !(u_max > u_min) {
+    if u_max.partial_cmp(&u_min) != Some(std::cmp::Ordering::Greater) {
         return 1.0;
     }
     if u_min.is_infinite() || u_max.is_infinite() {
