@@ -104,10 +104,7 @@ impl Beside {
     }
 
     fn stop(&self, scenario: &str, mode: Mode) -> String {
-        match self.row(scenario, mode) {
-            Some(r) if r.completed > 0 => format!("{:.2} ± {:.2}", r.stop_abs_m, r.stop_abs_std_m),
-            _ => "—".into(),
-        }
+        self.row(scenario, mode).map_or("—".into(), |r| stop_cell(r.completed, r.stop_abs_m, r.stop_abs_std_m))
     }
 }
 
@@ -199,7 +196,11 @@ pub fn table_iv_markdown(scenarios: &[ScenarioRef], summaries: &[Summary], besid
 
 /// Mean |stopping error| ± σ over the completed trials; "—" when none completed.
 fn stop_text(s: &Summary) -> String {
-    if s.completed == 0 { "—".into() } else { format!("{:.2} ± {:.2}", s.stop_abs_m, s.stop_abs_std_m) }
+    stop_cell(s.completed, s.stop_abs_m, s.stop_abs_std_m)
+}
+
+fn stop_cell(completed: u32, mean: f64, std: f64) -> String {
+    if completed == 0 { "—".into() } else { format!("{mean:.2} ± {std:.2}") }
 }
 
 /// Every (scenario, mode) with every figure, ours only.

@@ -238,10 +238,11 @@ impl Instruction {
             (Some(l), None) if l.find.is_some() => l.d_s.unwrap_or(0.0) + l.size,
             (_, Some(d)) => {
                 let at = vlnav_sim::geometry::Vec2::new(d[0], d[1]);
-                let landmark =
-                    world.entities.iter().filter(|e| e.class_id >= 0).any(|e| {
-                        world.find_objects(e.class_id, None, 0.0).iter().any(|(_, c)| c.sub(at).norm() <= 0.1)
-                    });
+                // Each class once: find_objects lists every instance of it.
+                let classes: BTreeSet<i32> = world.entities.iter().map(|e| e.class_id).filter(|c| *c >= 0).collect();
+                let landmark = classes
+                    .into_iter()
+                    .any(|c| world.find_objects(c, None, 0.0).iter().any(|(_, centre)| centre.sub(at).norm() <= 0.1));
                 if landmark { (self.radius - LANDMARK_SLACK_M).max(0.0) } else { 0.0 }
             }
             _ => 0.0,

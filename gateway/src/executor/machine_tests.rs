@@ -85,6 +85,16 @@ fn person(x_min: f32, x_max: f32) -> Detection {
     Detection { class_id: 0, label: "person".into(), ..chair(x_min, x_max) }
 }
 
+/// The `k`-th located sighting: odd ones with depth (a goal 2 m ahead), even
+/// ones without.
+fn every_other_without_depth(k: u32) -> Reply {
+    if k % 2 == 0 {
+        Reply::Located(Estimate { status: EstimateStatus::NoDepth, goal: None, fused_target: None, range_m: 0.0 })
+    } else {
+        located(Pose2::new(2.0, 0.0, 0.0))
+    }
+}
+
 fn located(goal: Pose2) -> Reply {
     Reply::Located(Estimate {
         status: EstimateStatus::Ok,
@@ -240,16 +250,7 @@ fn intermittent_sightings_confirm_within_the_window_and_misses_do_not_count() {
             Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
             Request::Locate { .. } => {
                 k += 1;
-                if k % 2 == 0 {
-                    Reply::Located(Estimate {
-                        status: EstimateStatus::NoDepth,
-                        goal: None,
-                        fused_target: None,
-                        range_m: 0.0,
-                    })
-                } else {
-                    located(Pose2::new(2.0, 0.0, 0.0))
-                }
+                every_other_without_depth(k)
             }
             Request::Drive { .. } => {
                 drives += 1;
@@ -307,16 +308,7 @@ fn a_sighting_without_depth_breaks_the_streak() {
             Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
             Request::Locate { .. } => {
                 k += 1;
-                if k % 2 == 0 {
-                    Reply::Located(Estimate {
-                        status: EstimateStatus::NoDepth,
-                        goal: None,
-                        fused_target: None,
-                        range_m: 0.0,
-                    })
-                } else {
-                    located(Pose2::new(2.0, 0.0, 0.0))
-                }
+                every_other_without_depth(k)
             }
             other => panic!("never confirmed, so never driven: {other:?}"),
         })
