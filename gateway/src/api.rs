@@ -501,11 +501,11 @@ impl FleetService for Gateway {
                         }
                     }
                     Some(edge_message::Kind::Odometry(o)) => {
-                        if let Some(p) = &o.pose {
-                            if let Err(e) = frames::check_pose(0, p) {
-                                let _ = tx.send(Err(frame_status(&robot, &e))).await;
-                                break format!("invalid odometry: {e}");
-                            }
+                        if let Some(p) = &o.pose
+                            && let Err(e) = frames::check_pose(0, p)
+                        {
+                            let _ = tx.send(Err(frame_status(&robot, &e))).await;
+                            break format!("invalid odometry: {e}");
                         }
                         mailbox.tell(RobotMsg::Odometry { conn, odometry: o }).await
                     }

@@ -38,10 +38,10 @@ pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(),
     if frame.stamp < 0.0 {
         return Err(FrameError::Invalid { seq, what: format!("stamp {} s is negative", frame.stamp) });
     }
-    if let Some(previous) = previous_stamp {
-        if frame.stamp < previous {
-            return Err(FrameError::StampBackwards { seq, stamp: frame.stamp, previous });
-        }
+    if let Some(previous) = previous_stamp
+        && frame.stamp < previous
+    {
+        return Err(FrameError::StampBackwards { seq, stamp: frame.stamp, previous });
     }
     let pose = frame.odom.as_ref().ok_or(FrameError::Missing { seq, field: "odom" })?;
     check_pose(seq, pose)?;
@@ -109,19 +109,19 @@ pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(),
             }
         }
     }
-    if let Some(labels) = &frame.labels {
-        if labels.width != w || labels.height != h || labels.instance_ids.len() != pixels * 2 {
-            return Err(FrameError::Invalid {
-                seq,
-                what: format!(
-                    "labels are {}x{} with {} bytes; the camera is {w}x{h}, so {} bytes of u16 ids are expected",
-                    labels.width,
-                    labels.height,
-                    labels.instance_ids.len(),
-                    pixels * 2
-                ),
-            });
-        }
+    if let Some(labels) = &frame.labels
+        && (labels.width != w || labels.height != h || labels.instance_ids.len() != pixels * 2)
+    {
+        return Err(FrameError::Invalid {
+            seq,
+            what: format!(
+                "labels are {}x{} with {} bytes; the camera is {w}x{h}, so {} bytes of u16 ids are expected",
+                labels.width,
+                labels.height,
+                labels.instance_ids.len(),
+                pixels * 2
+            ),
+        });
     }
     Ok(())
 }

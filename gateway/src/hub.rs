@@ -54,7 +54,7 @@ impl Hub {
                     kind: Some(Kind::Finished(Finished {
                         state: MissionState::Failed as i32,
                         reason: RESTART_REASON.to_string(),
-                        metrics: mission.metrics.clone(),
+                        metrics: mission.metrics,
                     })),
                 };
                 store.save(&mission, Some(&event))?;
@@ -111,7 +111,7 @@ impl Hub {
         if let Some(Kind::Finished(f)) = &kind {
             mission.state = f.state;
             mission.reason = f.reason.clone();
-            mission.metrics = f.metrics.clone();
+            mission.metrics = f.metrics;
         }
         let event = kind.map(|kind| MissionEvent {
             mission_id: id.to_string(),

@@ -66,9 +66,12 @@ pub enum RobotMsg {
     },
 }
 
+/// A robot's actor and the status it publishes.
+type RobotEntry = (Mailbox<RobotMsg>, Arc<Mutex<RobotInfo>>);
+
 /// Every robot the gateway has seen, connected or not.
 pub struct Fleet {
-    robots: Mutex<HashMap<String, (Mailbox<RobotMsg>, Arc<Mutex<RobotInfo>>)>>,
+    robots: Mutex<HashMap<String, RobotEntry>>,
     hub: Arc<Hub>,
     pipeline: Pipeline,
     params: ExecutorParams,
@@ -80,17 +83,17 @@ impl Fleet {
         Arc::new(Self { robots: Mutex::new(HashMap::new()), hub, pipeline, params, next_conn: 1.into() })
     }
 
-    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, (Mailbox<RobotMsg>, Arc<Mutex<RobotInfo>>)>> {
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, RobotEntry>> {
         self.robots.lock().unwrap_or_else(|p| p.into_inner())
     }
 
     /// The robot's mailbox, creating its actor on first contact.
     fn robot(self: &Arc<Self>, robot_id: &str) -> Mailbox<RobotMsg> {
         let mut robots = self.lock();
-        if let Some((mb, _)) = robots.get(robot_id) {
-            if !mb.is_closed() {
-                return mb.clone();
-            }
+        if let Some((mb, _)) = robots.get(robot_id)
+            && !mb.is_closed()
+        {
+            return mb.clone();
         }
         let (mailbox, rx) = Mailbox::channel("robot", 64);
         let info = Arc::new(Mutex::new(RobotInfo { robot_id: robot_id.to_string(), ..Default::default() }));
@@ -242,14 +245,14 @@ impl RobotActor {
     async fn handle(&mut self, msg: RobotMsg) {
         match msg {
             RobotMsg::Attach { hello, outbound, conn, reply } => {
-                if let Some((old, tx)) = &self.conn {
-                    if !tx.is_closed() {
-                        let _ = reply.send(Err(Status::already_exists(format!(
-                            "robot '{}' is already attached (connection {old}); stop the other edge agent first",
-                            self.robot_id
-                        ))));
-                        return;
-                    }
+                if let Some((old, tx)) = &self.conn
+                    && !tx.is_closed()
+                {
+                    let _ = reply.send(Err(Status::already_exists(format!(
+                        "robot '{}' is already attached (connection {old}); stop the other edge agent first",
+                        self.robot_id
+                    ))));
+                    return;
                 }
                 self.conn = Some((conn, outbound));
                 self.last_stamp = None;

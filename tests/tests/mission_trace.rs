@@ -71,11 +71,8 @@ async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
     for stage in ["detect", "segment", "local-plan", "edge-forward"] {
         // ResetRobot at the start of a step belongs to the step; every per-frame call to a cycle.
         let per_frame = |s: &&Span| !matches!(s.attributes.get("rpc.method"), Some(vlnav_traces::AttrValue::Str(m)) if m == "ResetRobot");
-        let stray: Vec<Option<&str>> = named(&spans, stage)
-            .filter(per_frame)
-            .map(|s| parent_name(s))
-            .filter(|p| *p != Some("control-cycle"))
-            .collect();
+        let stray: Vec<Option<&str>> =
+            named(&spans, stage).filter(per_frame).map(&parent_name).filter(|p| *p != Some("control-cycle")).collect();
         assert!(stray.is_empty(), "`{stage}` spans are children of a control cycle, not of {stray:?}");
     }
     // MOVE goals are computed at step start, FIND goals in the cycle.

@@ -242,7 +242,7 @@ impl Instruction {
                 let classes: BTreeSet<i32> = world.entities.iter().map(|e| e.class_id).filter(|c| *c >= 0).collect();
                 let landmark = classes
                     .into_iter()
-                    .any(|c| world.find_objects(c, None, 0.0).iter().any(|(_, centre)| centre.sub(at).norm() <= 0.1));
+                    .any(|c| world.find_objects(c, None, 0.0).iter().any(|(_, centre)| (*centre - at).norm() <= 0.1));
                 if landmark { (self.radius - LANDMARK_SLACK_M).max(0.0) } else { 0.0 }
             }
             _ => 0.0,

@@ -88,7 +88,7 @@ fn person(x_min: f32, x_max: f32) -> Detection {
 /// The `k`-th located sighting: odd ones with depth (a goal 2 m ahead), even
 /// ones without.
 fn every_other_without_depth(k: u32) -> Reply {
-    if k % 2 == 0 {
+    if k.is_multiple_of(2) {
         Reply::Located(Estimate { status: EstimateStatus::NoDepth, goal: None, fused_target: None, range_m: 0.0 })
     } else {
         located(Pose2::new(2.0, 0.0, 0.0))

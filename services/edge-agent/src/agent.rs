@@ -207,7 +207,7 @@ impl SimRobot {
             robot_id: &self.robot_id,
             seq: self.seq,
             stamp,
-            camera: self.camera.clone(),
+            camera: self.camera,
             odom: odom.pose,
             odom_twist: wheel,
         };
@@ -247,7 +247,7 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
         robot_id: opts.robot_id.clone(),
         driver: "sim".into(),
         limits: Some(convert::limits(&desc)),
-        camera: Some(camera.clone()),
+        camera: Some(camera),
         lockstep: opts.lockstep,
     };
     let mut robot = SimRobot {
@@ -417,10 +417,10 @@ impl Session<'_> {
             gov.on_command(answer.stamp, twist_of(&answer));
             gov.set_estop(hooks.estop.is_engaged());
             let (out, verdict) = gov.output(stamp);
-            if let Some(s) = status.update(stamp, verdict) {
-                if let Err(e) = link.send(s).await {
-                    return SessionEnd::Lost(e);
-                }
+            if let Some(s) = status.update(stamp, verdict)
+                && let Err(e) = link.send(s).await
+            {
+                return SessionEnd::Lost(e);
             }
             observe(hooks, robot, out, verdict, gov, answer.idle, answer.mission_id.clone());
             robot.step(out);
@@ -465,8 +465,8 @@ impl Session<'_> {
                     if !first {
                         gov.set_estop(hooks.estop.is_engaged());
                         let (out, verdict) = gov.output(robot.sim.time());
-                        if let Some(s) = status.update(robot.sim.time(), verdict) {
-                            if let Err(e) = link.offer(s) { return SessionEnd::Lost(e); }
+                        if let Some(s) = status.update(robot.sim.time(), verdict) && let Err(e) = link.offer(s) {
+                            return SessionEnd::Lost(e);
                         }
                         observe(hooks, robot, out, verdict, gov, last.idle, last.mission.clone());
                         robot.step(out);

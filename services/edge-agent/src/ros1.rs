@@ -447,8 +447,8 @@ async fn ros_session(
                 };
                 robot.publish(out);
                 let now = robot.now().unwrap_or(0.0);
-                if let Some(s) = status.update(now, verdict) {
-                    if let Err(e) = link.offer(s) { return SessionEnd::Lost(e); }
+                if let Some(s) = status.update(now, verdict) && let Err(e) = link.offer(s) {
+                    return SessionEnd::Lost(e);
                 }
                 if let Some(obs) = &hooks.observer {
                     let _ = obs.send(StepRecord {

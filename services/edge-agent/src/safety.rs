@@ -96,6 +96,13 @@ impl Governor {
         self.command
     }
 
+    /// Whether a command stamped `stamp` is still within the deadman timeout
+    /// at `now` (false for NaN stamps). A nanosecond of slack absorbs float
+    /// rounding in summed stamps.
+    fn fresh(&self, now: f64, stamp: f64) -> bool {
+        now - stamp <= self.deadman_timeout + 1e-9
+    }
+
     /// The velocity to apply at sensor time `now`, and why.
     ///
     /// Stops (zero at once, not ramped: the platform's own controller
@@ -114,8 +121,7 @@ impl Governor {
                     verdict = Verdict::NoCommand;
                     Twist::ZERO
                 }
-                // A nanosecond of slack absorbs float rounding in summed stamps.
-                Some((stamp, _)) if !(now - stamp <= self.deadman_timeout + 1e-9) => {
+                Some((stamp, _)) if !self.fresh(now, stamp) => {
                     verdict = Verdict::DeadmanTripped;
                     Twist::ZERO
                 }

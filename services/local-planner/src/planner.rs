@@ -157,6 +157,15 @@ pub enum Method {
     BruteForce,
 }
 
+/// One try of the scale-and-range fallback: the path level, how far the
+/// paths are checked (m) and how their blocked sets are computed.
+#[derive(Clone, Copy, Debug)]
+struct Pass {
+    level: usize,
+    range: f64,
+    method: Method,
+}
+
 /// The path library, its tables and the settings.
 #[derive(Clone, Debug)]
 pub struct Planner {
@@ -270,7 +279,7 @@ impl Planner {
             .compute(&self.field, cloud.cells.iter().filter(|c| c.blocking > 0).map(|c| (c.x as f64, c.y as f64)));
         scratch.dist_sem.compute(&self.field, cloud.cells.iter().filter(|c| c.no_go).map(|c| (c.x as f64, c.y as f64)));
         loop {
-            let (selection, free) = self.evaluate(cloud, goal, course, level, range, scratch, method);
+            let (selection, free) = self.evaluate(cloud, goal, course, Pass { level, range, method }, scratch);
             if selection.is_some() {
                 return Plan { selection, free_paths: free, scale: self.levels[level].scale, range };
             }
@@ -285,15 +294,8 @@ impl Planner {
         }
     }
 
-    fn blocked_sets(
-        &self,
-        cloud: &ObstacleCloud,
-        goal_dist: f64,
-        level: usize,
-        range: f64,
-        scratch: &mut Scratch,
-        method: Method,
-    ) {
+    fn blocked_sets(&self, cloud: &ObstacleCloud, goal_dist: f64, pass: Pass, scratch: &mut Scratch) {
+        let Pass { level, range, method } = pass;
         let n_rot = self.rot_cs.len();
         for v in [&mut scratch.once, &mut scratch.twice, &mut scratch.no_go, &mut scratch.low] {
             v.clear();
@@ -346,13 +348,12 @@ impl Planner {
         cloud: &ObstacleCloud,
         goal: Vector2<f64>,
         course: f64,
-        level: usize,
-        range: f64,
+        pass: Pass,
         scratch: &mut Scratch,
-        method: Method,
     ) -> (Option<Selection>, usize) {
         let goal_dist = goal.norm();
-        self.blocked_sets(cloud, goal_dist, level, range, scratch, method);
+        self.blocked_sets(cloud, goal_dist, pass, scratch);
+        let Pass { level, range, .. } = pass;
         let lvl = &self.levels[level];
         let w = &self.params.weights;
         let scale = lvl.scale;

@@ -151,7 +151,7 @@ async fn box_in_the_depth_frame_turns_the_path_aside() {
 async fn dead_end_is_blocked_and_the_robot_stops() {
     let mut s = start().await;
     // A dead end 1.0 m wide (walls in odom = base_link at the origin pose).
-    let walls = vec![
+    let walls = [
         ([1.0, -0.6, 0.0], [1.1, 0.6, 1.0]),
         ([-1.0, 0.5, 0.0], [1.1, 0.6, 1.0]),
         ([-1.0, -0.6, 0.0], [1.1, -0.5, 1.0]),

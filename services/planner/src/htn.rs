@@ -1550,7 +1550,7 @@ fn ellipsis_or_aside(t: &[Token], ws: &[&str], q: &Quantities, text: String, ctx
             let (p, c, _) = phrase_from(t, i);
             (!p.is_empty()).then_some((p, c))
         })
-        .last();
+        .next_back();
     vec![Directive::Aside { text, mention }]
 }
 

@@ -16,7 +16,7 @@ fn bench(c: &mut Criterion) {
                 b.iter(|| {
                     // Drive in a slow circle so the view changes every frame.
                     k += 1;
-                    let cmd = if (k / 50) % 2 == 0 { Twist::new(0.3, 0.4) } else { Twist::new(-0.3, -0.4) };
+                    let cmd = if (k / 50).is_multiple_of(2) { Twist::new(0.3, 0.4) } else { Twist::new(-0.3, -0.4) };
                     sim.step(cmd, 0.1);
                     sim.render_into(&mut frame);
                     frame.depth_mm[0]

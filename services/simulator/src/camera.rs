@@ -272,7 +272,7 @@ impl Renderer {
         let noise_on = cam.depth_noise_k > 0.0;
         for u in 0..w {
             // Ray with unit forward component: its parameter is optical z.
-            let d = forward.add(left.scale(-((u as f64) - cam.cx) / cam.fx));
+            let d = forward + left.scale(-((u as f64) - cam.cx) / cam.fx);
             self.hits.clear();
             for p in &prisms {
                 self.spans.clear();
@@ -358,7 +358,7 @@ impl Renderer {
                         }
                         if entity == floor_entity {
                             // A faint 1 m checker gives the floor texture.
-                            let p = origin.add(d.scale(t_floor));
+                            let p = origin + d.scale(t_floor);
                             if ((p.x.floor() + p.y.floor()) as i64).rem_euclid(2) == 0 {
                                 shade = 0.86;
                             }
@@ -446,7 +446,7 @@ fn in_view_share(shape: &Shape, origin: Vec2, forward: Vec2, left: Vec2, cam: &C
     let mut u_min = f64::INFINITY;
     let mut u_max = f64::NEG_INFINITY;
     for p in [Vec2::new(lo.x, lo.y), Vec2::new(hi.x, lo.y), Vec2::new(hi.x, hi.y), Vec2::new(lo.x, hi.y)] {
-        let r = p.sub(origin);
+        let r = p - origin;
         let (x, y) = (r.dot(forward), r.dot(left));
         if x < 0.05 {
             // Part of it is beside or behind the camera: that side runs off the image.

@@ -15,12 +15,6 @@ impl Vec2 {
     pub const fn new(x: f64, y: f64) -> Self {
         Self { x, y }
     }
-    pub fn add(self, o: Vec2) -> Vec2 {
-        Vec2::new(self.x + o.x, self.y + o.y)
-    }
-    pub fn sub(self, o: Vec2) -> Vec2 {
-        Vec2::new(self.x - o.x, self.y - o.y)
-    }
     pub fn scale(self, k: f64) -> Vec2 {
         Vec2::new(self.x * k, self.y * k)
     }
@@ -36,6 +30,20 @@ impl Vec2 {
     pub fn rotate(self, theta: f64) -> Vec2 {
         let (s, c) = theta.sin_cos();
         Vec2::new(c * self.x - s * self.y, s * self.x + c * self.y)
+    }
+}
+
+impl std::ops::Add for Vec2 {
+    type Output = Vec2;
+    fn add(self, o: Vec2) -> Vec2 {
+        Vec2::new(self.x + o.x, self.y + o.y)
+    }
+}
+
+impl std::ops::Sub for Vec2 {
+    type Output = Vec2;
+    fn sub(self, o: Vec2) -> Vec2 {
+        Vec2::new(self.x - o.x, self.y - o.y)
     }
 }
 
@@ -97,7 +105,7 @@ impl Shape {
     pub fn contains(&self, p: Vec2) -> bool {
         match self {
             Shape::Polygon(pts) => point_in_polygon(p, pts),
-            Shape::Circle { centre, radius } => p.sub(*centre).norm() <= *radius,
+            Shape::Circle { centre, radius } => (p - *centre).norm() <= *radius,
         }
     }
 
@@ -114,17 +122,17 @@ impl Shape {
                     let a = pts[i];
                     let b = pts[(i + 1) % len];
                     // Signed side of each endpoint relative to the line.
-                    let sa = d.cross(a.sub(o));
-                    let sb = d.cross(b.sub(o));
+                    let sa = d.cross(a - o);
+                    let sb = d.cross(b - o);
                     if (sa > 0.0) == (sb > 0.0) {
                         continue;
                     }
-                    let e = b.sub(a);
+                    let e = b - a;
                     let denom = d.cross(e);
                     if denom == 0.0 {
                         continue;
                     }
-                    let t = a.sub(o).cross(e) / denom;
+                    let t = (a - o).cross(e) / denom;
                     let nl = e.norm();
                     let c = Crossing { t, normal: Vec2::new(e.y / nl, -e.x / nl) };
                     if n < xs.len() {
@@ -147,7 +155,7 @@ impl Shape {
             }
             Shape::Circle { centre, radius } => {
                 // |o + t d − c|² = r²
-                let f = o.sub(*centre);
+                let f = o - *centre;
                 let a = d.dot(d);
                 let b = 2.0 * f.dot(d);
                 let c = f.dot(f) - radius * radius;
@@ -156,7 +164,7 @@ impl Shape {
                     let s = disc.sqrt();
                     let t0 = (-b - s) / (2.0 * a);
                     let t1 = (-b + s) / (2.0 * a);
-                    let p = o.add(d.scale(t0)).sub(*centre);
+                    let p = o + d.scale(t0) - *centre;
                     out.push(Span { t_in: t0, t_out: t1, normal_in: p.scale(1.0 / radius) });
                 }
             }
@@ -195,7 +203,7 @@ pub fn segments_intersect(a: Vec2, b: Vec2, c: Vec2, d: Vec2) -> bool {
 }
 
 fn orient(a: Vec2, b: Vec2, c: Vec2) -> f64 {
-    b.sub(a).cross(c.sub(a))
+    (b - a).cross(c - a)
 }
 
 fn on_segment(a: Vec2, b: Vec2, p: Vec2) -> bool {
@@ -204,10 +212,10 @@ fn on_segment(a: Vec2, b: Vec2, p: Vec2) -> bool {
 
 /// Distance from `p` to the segment `a–b`.
 pub fn point_segment_distance(p: Vec2, a: Vec2, b: Vec2) -> f64 {
-    let ab = b.sub(a);
+    let ab = b - a;
     let l2 = ab.dot(ab);
-    let t = if l2 == 0.0 { 0.0 } else { (p.sub(a).dot(ab) / l2).clamp(0.0, 1.0) };
-    p.sub(a.add(ab.scale(t))).norm()
+    let t = if l2 == 0.0 { 0.0 } else { ((p - a).dot(ab) / l2).clamp(0.0, 1.0) };
+    (p - (a + ab.scale(t))).norm()
 }
 
 /// Twice the signed area (positive when counter-clockwise).
@@ -297,16 +305,16 @@ impl OrientedRect {
 pub fn box_polygon(centre: Vec2, size: [f64; 2], yaw: f64) -> Vec<Vec2> {
     let (hx, hy) = (size[0] / 2.0, size[1] / 2.0);
     [Vec2::new(hx, hy), Vec2::new(-hx, hy), Vec2::new(-hx, -hy), Vec2::new(hx, -hy)]
-        .map(|c| c.rotate(yaw).add(centre))
+        .map(|c| c.rotate(yaw) + centre)
         .to_vec()
 }
 
 /// The quadrilateral covering the segment `a–b` widened to `width`.
 pub fn segment_quad(a: Vec2, b: Vec2, width: f64) -> Vec<Vec2> {
-    let d = b.sub(a);
+    let d = b - a;
     let l = d.norm().max(1e-9);
     let n = Vec2::new(-d.y / l, d.x / l).scale(width / 2.0);
-    vec![a.add(n), b.add(n), b.sub(n), a.sub(n)]
+    vec![a + n, b + n, b - n, a - n]
 }
 
 #[cfg(test)]

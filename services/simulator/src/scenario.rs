@@ -294,13 +294,13 @@ fn polygon(field: &str, pts: &[Point]) -> Result<Vec<Vec2>, ScenarioError> {
     }
     let mut v = points(field, pts)?;
     let area2 = signed_area2(&v);
-    if let Some((i, j)) = self_intersection(&v) {
-        if area2.abs() >= 1e-6 || !v.windows(2).any(|w| w[0] == w[1]) {
-            return Err(ScenarioError::invalid(
-                field,
-                format!("polygon is not simple: edge {i} crosses edge {j} (list vertices in order around the outline)"),
-            ));
-        }
+    if let Some((i, j)) = self_intersection(&v)
+        && (area2.abs() >= 1e-6 || !v.windows(2).any(|w| w[0] == w[1]))
+    {
+        return Err(ScenarioError::invalid(
+            field,
+            format!("polygon is not simple: edge {i} crosses edge {j} (list vertices in order around the outline)"),
+        ));
     }
     if area2.abs() < 1e-6 {
         return Err(ScenarioError::invalid(field, "polygon has zero area (collinear or repeated vertices)"));
@@ -363,7 +363,7 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
         let segments = if w.closed { n } else { n - 1 };
         for s in 0..segments {
             let (a, b) = (pts[s], pts[(s + 1) % n]);
-            let len = b.sub(a).norm();
+            let len = (b - a).norm();
             if len < 1e-6 {
                 return Err(ScenarioError::invalid(
                     format!("{field}.path[{}]", (s + 1) % n),
@@ -371,10 +371,10 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
                 ));
             }
             // Extend each segment by half the thickness so corners close.
-            let d = b.sub(a).scale(w.thickness / 2.0 / len);
+            let d = (b - a).scale(w.thickness / 2.0 / len);
             solids.push(Solid {
                 entity: id,
-                shape: Shape::Polygon(segment_quad(a.sub(d), b.add(d), w.thickness)),
+                shape: Shape::Polygon(segment_quad(a - d, b + d, w.thickness)),
                 height: w.height,
                 color: w.color.unwrap_or(WALL_COLOR),
             });
@@ -456,7 +456,7 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
         check_positive(&format!("{field}.width"), c.width, 0.5)?;
         let mut shapes = Vec::new();
         for s in 0..pts.len() - 1 {
-            if pts[s + 1].sub(pts[s]).norm() < 1e-6 {
+            if (pts[s + 1] - pts[s]).norm() < 1e-6 {
                 return Err(ScenarioError::invalid(format!("{field}.path[{}]", s + 1), "repeats the previous point"));
             }
             shapes.push(Shape::Polygon(segment_quad(pts[s], pts[s + 1], c.width)));
@@ -475,7 +475,7 @@ pub fn validate(f: &ScenarioFile) -> Result<World, ScenarioError> {
         }
         let wps = points(&format!("{field}.waypoints"), &p.waypoints)?;
         for k in 1..wps.len() {
-            if wps[k].sub(wps[k - 1]).norm() < 1e-6 {
+            if (wps[k] - wps[k - 1]).norm() < 1e-6 {
                 return Err(ScenarioError::invalid(format!("{field}.waypoints[{k}]"), "repeats the previous waypoint"));
             }
         }

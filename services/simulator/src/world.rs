@@ -95,7 +95,7 @@ impl Pedestrian {
         }
         let mut cumulative = vec![0.0];
         for k in 1..route.len() {
-            let l = cumulative[k - 1] + route[k].sub(route[k - 1]).norm();
+            let l = cumulative[k - 1] + (route[k] - route[k - 1]).norm();
             cumulative.push(l);
         }
         Self { entity, waypoints, speed, looped, radius, height, color, cumulative }
@@ -118,7 +118,7 @@ impl Pedestrian {
         let b = self.waypoints[k % n];
         let seg = self.cumulative[k] - self.cumulative[k - 1];
         let f = if seg > 0.0 { (s - self.cumulative[k - 1]) / seg } else { 0.0 };
-        a.add(b.sub(a).scale(f))
+        a + (b - a).scale(f)
     }
 
     pub fn shape_at(&self, t: f64) -> Shape {
@@ -155,7 +155,7 @@ impl World {
             let e = &self.entities[s.entity as usize - 1];
             if e.class_id == class_id && identity.is_none_or(|id| id == e.identity) {
                 let (lo, hi) = s.shape.bounds();
-                out.push((e, lo.add(hi).scale(0.5)));
+                out.push((e, (lo + hi).scale(0.5)));
             }
         }
         for p in &self.pedestrians {

@@ -217,14 +217,14 @@ fn object_position(world: &World, name: &str) -> Vec2 {
     let id = world.entities.iter().find(|e| e.name == name).unwrap_or_else(|| panic!("no {name}")).instance_id;
     let s = world.solids.iter().find(|s| s.entity == id).unwrap();
     let (lo, hi) = s.shape.bounds();
-    lo.add(hi).scale(0.5)
+    (lo + hi).scale(0.5)
 }
 
 /// Where a FIND step that starts at `from` stops: `d_s` short of the target, facing it.
 fn stop_short(from: Vec2, target: Vec2, d_s: f64) -> Pose2 {
-    let d = target.sub(from);
+    let d = target - from;
     let l = d.norm();
-    let p = from.add(d.scale((l - d_s) / l));
+    let p = from + d.scale((l - d_s) / l);
     Pose2::new(p.x, p.y, d.y.atan2(d.x))
 }
 
@@ -248,12 +248,12 @@ fn demo_makes_both_paper_instructions_meaningful() {
     let (f, _) = view(&w, start);
     assert_eq!(persons_in_view(&f), vec!["statue (human)".to_string()]);
     assert!(pixels_of(&f, "statue (human)") > 500);
-    assert!(statue.sub(Vec2::from(start.position())).norm() <= 10.0);
+    assert!((statue - Vec2::from(start.position())).norm() <= 10.0);
     let at_statue = stop_short(Vec2::from(start.position()), statue, 2.0);
     let turned = move_step(at_statue, -std::f64::consts::FRAC_PI_2, 2.5);
     let (f, _) = view(&w, turned);
     assert!(pixels_of(&f, "visitor chair") > 500, "chair ahead after the right turn");
-    assert!(chair.sub(Vec2::from(turned.position())).norm() <= 10.0);
+    assert!((chair - Vec2::from(turned.position())).norm() <= 10.0);
     let at_chair = stop_short(Vec2::from(turned.position()), chair, 1.5);
     let (f, _) = view(&w, at_chair);
     assert!(pixels_of(&f, "bicycle") > 500, "bicycle in view on the right of the chair");
@@ -264,13 +264,10 @@ fn demo_makes_both_paper_instructions_meaningful() {
     let after_move = move_step(start, std::f64::consts::FRAC_PI_2, 4.0);
     let (f, _) = view(&w, after_move);
     assert_eq!(persons_in_view(&f), vec!["standing person".to_string()]);
-    assert!(person.sub(Vec2::from(after_move.position())).norm() <= 10.0);
+    assert!((person - Vec2::from(after_move.position())).norm() <= 10.0);
     let at_person = stop_short(Vec2::from(after_move.position()), person, 2.0);
     let rel = at_person.relative(&Pose2::new(chair.x, chair.y, 0.0));
-    assert!(
-        rel.y < 0.0 && chair.sub(Vec2::from(at_person.position())).norm() <= 10.0,
-        "chair on the right within 10 m"
-    );
+    assert!(rel.y < 0.0 && (chair - Vec2::from(at_person.position())).norm() <= 10.0, "chair on the right within 10 m");
     // Scanning right by 30° steps brings the chair into view.
     let found = (1..=4).any(|k| {
         let (f, _) = view(&w, Pose2::new(at_person.x, at_person.y, at_person.theta - k as f64 * 30f64.to_radians()));
@@ -282,8 +279,7 @@ fn demo_makes_both_paper_instructions_meaningful() {
         &w.markings.iter().find(|m| w.entity(m.entity).unwrap().semantic == Semantic::RestrictedZone).unwrap().shapes
             [0];
     let crosses = (0..=100).any(|i| {
-        let p =
-            Vec2::from(at_person.position()).add(chair.sub(Vec2::from(at_person.position())).scale(i as f64 / 100.0));
+        let p = Vec2::from(at_person.position()) + (chair - Vec2::from(at_person.position())).scale(i as f64 / 100.0);
         OrientedRect::new(Pose2::new(p.x, p.y, at_person.theta), 0.988, 0.67).overlaps(zone)
     });
     assert!(crosses);
@@ -306,7 +302,7 @@ fn lab_is_ten_by_five_and_a_half_with_its_objects_within_reach() {
     for e in w.entities.iter().filter(|e| e.class_id >= 0) {
         let p = object_position(&w, &e.name);
         assert!(p.x > 0.0 && p.x < 10.0 && p.y > 0.0 && p.y < 5.5, "{} inside the room", e.name);
-        assert!(p.sub(Vec2::from(w.start.position())).norm() <= 10.0);
+        assert!((p - Vec2::from(w.start.position())).norm() <= 10.0);
     }
     // Looking down the room from the start: chairs, bottles and the red zone are visible at 640×480.
     let (f, _) = view(&w, w.start);

@@ -131,8 +131,7 @@ impl Tracks {
             self.tracks.remove(key);
         }
         if !self.tracks.contains_key(key) {
-            if obs.target.is_err() {
-                let e = obs.target.unwrap_err();
+            if let Err(e) = &obs.target {
                 return TargetEstimate {
                     status: EstimateStatus::NoDepth,
                     detail: format!("{e}; no earlier observation of this target"),
