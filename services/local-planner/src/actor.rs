@@ -10,7 +10,7 @@ use vlnav_geometry::depth::DepthView;
 use vlnav_geometry::{GoalSpec, Pose2};
 use vlnav_runtime::actor::Mailbox;
 
-use crate::cloud::{CloudBuilder, CloudParams};
+use crate::cloud::{CloudBuilder, CloudParams, ObstacleCloud, SeenRange};
 use crate::control::{FollowParams, RobotState, StepInput, StepOutput, View};
 use crate::planner::Planner;
 
@@ -67,8 +67,11 @@ async fn run(mut a: Actor, mut rx: mpsc::Receiver<Msg>) {
                 let r = *request;
                 let cloud = match DepthView::new(r.camera.width, r.camera.height, &r.depth_mm) {
                     Ok(depth) => a.builder.from_depth(&r.camera, &depth, &r.no_go),
-                    // The tonic layer checked the size; an empty cloud is the safe fallback.
-                    Err(_) => a.builder.from_points(&[], &r.no_go),
+                    // The tonic layer checked the size; an empty cloud that saw
+                    // nothing (so forgets nothing remembered) is the safe fallback.
+                    Err(_) => {
+                        ObstacleCloud { seen: Some(SeenRange::default()), ..a.builder.from_points(&[], &r.no_go) }
+                    }
                 };
                 let state = a.robots.entry(r.robot_id).or_default();
                 let output = state.step(

@@ -12,8 +12,14 @@
 //! block a path" rule counts distinct voxels, not pixels. The segmenter's
 //! virtual no-go points become cells of their own kind: they block and feed
 //! the semantic cost.
+//!
+//! A depth frame also records how far it saw along each bearing
+//! ([`SeenRange`]): the farthest valid point below `max_height`, floor
+//! included. Where the D455 returns no depth (stereo occlusion bands left of
+//! near edges, textureless or distant surfaces) the frame saw nothing, and
+//! the obstacle memory (`control.rs`) keeps what it remembers there.
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::camera::Camera;
 use vlnav_geometry::depth::DepthView;
 
@@ -69,6 +75,50 @@ pub struct ObstacleCloud {
     pub cells: Vec<Cell>,
     /// Points that survived the height and range filters (before downsampling).
     pub raw_points: usize,
+    /// How far the frame saw along each bearing; `None` for clouds not built
+    /// from a depth frame (synthetic points), whose coverage is unknown.
+    pub seen: Option<SeenRange>,
+}
+
+/// The farthest horizontal range a depth frame measured along each bearing
+/// from the camera, in 1° bins, `base_link`.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SeenRange {
+    /// The camera's position in `base_link` (x, y), m.
+    origin: Vector2<f64>,
+    /// Range per bin, m (0: nothing measured); bin 0 starts at bearing −π.
+    range: Vec<f32>,
+}
+
+impl SeenRange {
+    const BINS: usize = 360;
+
+    /// Nothing seen yet, from a camera at `origin` (`base_link`, m).
+    pub fn new(origin: Vector2<f64>) -> Self {
+        Self { origin, range: vec![0.0; Self::BINS] }
+    }
+
+    fn bin(&self, d: &Vector2<f64>) -> usize {
+        let f = (d.y.atan2(d.x) + std::f64::consts::PI) / std::f64::consts::TAU;
+        ((f * Self::BINS as f64) as usize).min(Self::BINS - 1)
+    }
+
+    /// Records a measured point at (x, y) in `base_link`.
+    pub fn record(&mut self, x: f64, y: f64) {
+        let d = Vector2::new(x, y) - self.origin;
+        if self.range.is_empty() {
+            return;
+        }
+        let k = self.bin(&d);
+        self.range[k] = self.range[k].max(d.norm() as f32);
+    }
+
+    /// Whether the frame saw as far as `p` (`base_link`) along its bearing,
+    /// within `margin` m.
+    pub fn reaches(&self, p: &Vector2<f64>, margin: f64) -> bool {
+        let d = p - self.origin;
+        !self.range.is_empty() && f64::from(self.range[self.bin(&d)]) >= d.norm() - margin
+    }
 }
 
 impl ObstacleCloud {
@@ -90,6 +140,7 @@ pub struct CloudBuilder {
     column: Vec<u32>,
     cells: Vec<Cell>,
     raw: usize,
+    seen: Option<SeenRange>,
 }
 
 const NO_CELL: u32 = u32::MAX;
@@ -111,6 +162,7 @@ impl CloudBuilder {
             column: vec![NO_CELL; nx * ny],
             cells: Vec::new(),
             raw: 0,
+            seen: None,
         }
     }
 
@@ -127,6 +179,7 @@ impl CloudBuilder {
         self.cells.clear();
         self.occupied.fill(0);
         self.raw = 0;
+        self.seen = None;
     }
 
     fn cell_mut(&mut self, ix: usize, iy: usize) -> &mut Cell {
@@ -198,6 +251,9 @@ impl CloudBuilder {
         let t = cam.mount.optical_to_base();
         let stride = self.params.stride.max(1);
         let (lo, hi) = (cam.depth_min_m * 1000.0, cam.depth_max_m * 1000.0);
+        let origin = t.apply(&Vector3::zeros());
+        let mut seen = SeenRange::new(Vector2::new(origin.x, origin.y));
+        let top = self.params.ground_z + self.params.max_height;
         for v in (0..depth.height()).step_by(stride) {
             let yn = (v as f64 - k.cy) / k.fy;
             for u in (0..depth.width()).step_by(stride) {
@@ -208,9 +264,13 @@ impl CloudBuilder {
                 }
                 let zm = z / 1000.0;
                 let p = t.apply(&Vector3::new((u as f64 - k.cx) / k.fx * zm, yn * zm, zm));
+                if p.z <= top {
+                    seen.record(p.x, p.y);
+                }
                 self.add_point(p.x, p.y, p.z);
             }
         }
+        self.seen = Some(seen);
     }
 
     /// Builds a cloud from `base_link` points and no-go points (benchmarks, tests).
@@ -236,7 +296,7 @@ impl CloudBuilder {
     }
 
     fn finish(&mut self) -> ObstacleCloud {
-        ObstacleCloud { cells: self.cells.clone(), raw_points: self.raw }
+        ObstacleCloud { cells: self.cells.clone(), raw_points: self.raw, seen: self.seen.clone() }
     }
 }
 

@@ -43,9 +43,15 @@
 //!   turn straight back. Cells of recent frames (`memory_s`, 3 s of sensor
 //!   time; `near_memory_s`, 30 s, for cells within `near_memory_m`, 1 m, of
 //!   the robot, which a turn in place must not forget) are kept in `odom` and
-//!   merged into the plan while they are outside the current view (inside it, the current frame is the truth, so moved
-//!   obstacles are forgotten). The memory is dropped when the odometry jumps
-//!   (a reset at a reached subgoal) or time runs backwards.
+//!   merged into the plan unless the current frame measured that place: a
+//!   remembered cell is forgotten only where it lies inside the view and the
+//!   frame's depth reached it along its bearing (`cloud::SeenRange`, within
+//!   `memory_seen_margin_m`), so an obstacle that moved away is forgotten
+//!   but one behind a stereo occlusion band — no depth left of a near edge,
+//!   docs/perception.md — is not. (Forgetting everything inside the view's
+//!   angle let the robot graze tunnel walls it had just seen.) The memory is
+//!   dropped when the odometry jumps (a reset at a reached subgoal) or time
+//!   runs backwards.
 //! - No progress: while moving, if the distance to the goal has not dropped
 //!   by `progress_distance` (0.1 m) within `progress_window_s` (5 s of sensor
 //!   time), the step reports NO_PROGRESS once with a stop and the window
@@ -91,6 +97,9 @@ pub struct FollowParams {
     pub memory_near_m: f64,
     /// Remembered cells farther than this are dropped, m.
     pub memory_range_m: f64,
+    /// A remembered cell counts as measured again when the frame's depth
+    /// reached to within this of it along its bearing, m (one voxel).
+    pub memory_seen_margin_m: f64,
     /// Cells this close to the robot are remembered for `near_memory_s`, m.
     pub near_memory_m: f64,
     pub near_memory_s: f64,
@@ -126,6 +135,7 @@ impl Default for FollowParams {
             memory_s: 3.0,
             memory_near_m: 0.6,
             memory_range_m: 4.25,
+            memory_seen_margin_m: 0.05,
             near_memory_m: 1.0,
             near_memory_s: 30.0,
             sweep_radius_m: 0.65,
@@ -271,7 +281,8 @@ impl RobotState {
             if age > p.memory_s && !(age <= p.near_memory_s && b.norm() <= p.near_memory_m) {
                 continue;
             }
-            if b.norm() > p.memory_range_m || input.view.sees(&b, p.memory_near_m) {
+            let measured = cloud.seen.as_ref().is_none_or(|s| s.reaches(&b, p.memory_seen_margin_m));
+            if b.norm() > p.memory_range_m || (measured && input.view.sees(&b, p.memory_near_m)) {
                 continue;
             }
             cells.push(Cell { x: b.x as f32, y: b.y as f32, ..m.cell });
@@ -282,7 +293,7 @@ impl RobotState {
             kept.push(Remembered { at, cell: *c, stamp: input.stamp });
         }
         self.memory = kept;
-        ObstacleCloud { cells, raw_points: cloud.raw_points }
+        ObstacleCloud { cells, raw_points: cloud.raw_points, seen: cloud.seen.clone() }
     }
 
     /// Obstacle cells currently remembered (this frame's included).
@@ -439,6 +450,7 @@ impl RobotState {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::cloud::SeenRange;
 
     /// Turns a Husky-like yaw axis (6 rad/s² acceleration limit; each
     /// frame's command held over the next frame period, as the edge agent
@@ -456,6 +468,62 @@ mod tests {
             worst = worst.max(heading - target);
         }
         worst
+    }
+
+    /// A frame whose depth reached `reach` m along every bearing except
+    /// those within `hole` (rad, from the camera at the origin), with no
+    /// obstacle cells.
+    fn frame(reach: f64, hole: Option<(f64, f64)>) -> ObstacleCloud {
+        let mut seen = SeenRange::new(Vector2::zeros());
+        for k in 0..3600 {
+            let a = -std::f64::consts::PI + k as f64 / 3600.0 * std::f64::consts::TAU;
+            if hole.is_some_and(|(lo, hi)| a >= lo && a <= hi) {
+                continue;
+            }
+            seen.record(reach * a.cos(), reach * a.sin());
+        }
+        ObstacleCloud { seen: Some(seen), ..ObstacleCloud::default() }
+    }
+
+    fn remembered_after(state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64) -> usize {
+        let p = FollowParams::default();
+        let input = StepInput {
+            stamp,
+            pose: Pose2::new(0.0, 0.0, 0.0),
+            goal: GoalSpec {
+                pose: Pose2::new(3.0, 0.0, 0.0),
+                position_tolerance: 0.3,
+                yaw_tolerance: 0.2,
+                rotation_only: false,
+            },
+            cloud,
+            max_speed: 0.0,
+            view: View { yaw: 0.0, half_fov: 0.75 },
+        };
+        state.merge_memory(cloud, &input, &p).cells.len()
+    }
+
+    #[test]
+    fn remembered_cells_are_forgotten_only_where_the_depth_reached_them() {
+        let wall = Cell { x: 2.0, y: 0.5, blocking: 3, low: false, no_go: false };
+        let bearing = 0.5_f64.atan2(2.0);
+        let seen_wall = ObstacleCloud { cells: vec![wall], ..frame(2.0, None) };
+        let mut state = RobotState::default();
+        assert_eq!(remembered_after(&mut state, &seen_wall, 0.0), 1);
+        // An occlusion band over the wall's bearing: nothing measured there,
+        // so the wall stays although it is inside the view's angle.
+        let hole = frame(4.0, Some((bearing - 0.05, bearing + 0.05)));
+        assert_eq!(remembered_after(&mut state, &hole, 0.2), 1);
+        // Depth that stops short of the wall (the floor seen to 1.5 m) did
+        // not measure it either.
+        assert_eq!(remembered_after(&mut state, &frame(1.5, None), 0.4), 1);
+        // Depth that reached past it: the wall has gone.
+        assert_eq!(remembered_after(&mut state, &frame(4.0, None), 0.6), 0);
+        // Without coverage (clouds not built from depth) the view's angle
+        // decides, as before.
+        let mut state = RobotState::default();
+        remembered_after(&mut state, &seen_wall, 0.0);
+        assert_eq!(remembered_after(&mut state, &ObstacleCloud::default(), 0.2), 0);
     }
 
     #[test]
