@@ -23,7 +23,7 @@ llama-server:
 # compiles the workspace once.
 demo: export VLNAV_CARGO_PROFILE = release
 demo: models
-	cargo run --release -p vlnav-gateway --bin vlnav -- demo
+	cargo run --release -p vlnav -- demo
 
 test: system models tools llama-server
 	cargo test --workspace --no-fail-fast

@@ -11,7 +11,6 @@
 //! - [`api`]: the thin tonic layer of MissionService and FleetService.
 
 pub mod api;
-pub mod cli;
 pub mod config;
 pub mod executor;
 pub mod frames;
@@ -19,6 +18,5 @@ pub mod hub;
 pub mod pipeline;
 pub mod robot;
 pub mod store;
-pub mod up;
 
 pub use config::GatewayOptions;

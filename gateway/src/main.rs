@@ -1,197 +1,26 @@
-//! `vlnav`: the gateway, the all-in-one runner and the client commands.
+//! vlnav-gateway: MissionService and FleetService on their own port (default
+//! 50051), with the stage services elsewhere.
 
-use std::net::SocketAddr;
-
-use clap::{Parser, Subcommand};
-use tokio::net::TcpListener;
-use vlnav_gateway::cli::{MissionArgs, run_mission};
-use vlnav_gateway::up::{UpArgs, up};
+use clap::Parser;
 use vlnav_gateway::{GatewayOptions, api::Gateway};
-use vlnav_runtime::{CancellationToken, ServerConfig, ports, telemetry};
-
-/// The paper's Case 2 instruction (docs/design.md §2).
-pub const CASE_2: &str = "Buddy take left turn, move 4 m ahead, then find the standing person to reach close to it, \
-In your right you may see the visitor chair follow it. Finally go at spot where bicycle is standing.";
+use vlnav_runtime::{ServerConfig, ports};
 
 #[derive(Parser)]
-#[command(name = "vlnav", version, about = "Language-driven, map-free navigation for service robots")]
+#[command(
+    name = "vlnav-gateway",
+    version,
+    about = "Mission and fleet gateway: plans instructions and runs them on attached robots through the stage services"
+)]
 struct Cli {
-    #[command(subcommand)]
-    cmd: Cmd,
-}
-
-#[derive(Subcommand)]
-enum Cmd {
-    /// Run every service, the gateway and a simulated Husky in one process (loopback gRPC).
-    Up(UpArgs),
-    /// Run the gateway alone, with the stage services elsewhere.
-    Gateway {
-        #[command(flatten)]
-        server: ServerConfig,
-        #[command(flatten)]
-        opts: GatewayOptions,
-    },
-    /// Submit an instruction to a running gateway and follow the mission.
-    Mission(MissionArgs),
-    /// `up`, then the paper's example instruction, then a summary and a latency profile.
-    Demo {
-        /// What to tell the robot.
-        #[arg(long, default_value = CASE_2)]
-        instruction: String,
-        #[command(flatten)]
-        up: UpArgs,
-    },
-    /// Run the evaluation suite in lockstep simulation through the real services.
-    Eval(vlnav_eval::EvalArgs),
-    /// Per-stage latency of a mission from its distributed trace.
-    Profile(vlnav_traces::ProfileArgs),
-    /// Run a detector on photos: one line per box (or JSON), annotated copies with --out.
-    Detect(vlnav_detector::cli::DetectArgs),
-    /// Measure the perception error model on the real NanoDet and MobileNetV2
-    /// (real photos, scaled, cut and pasted) and write the profile.
-    CalibratePerception(vlnav_eval::calibrate::CalibrateArgs),
-}
-
-/// Starts the built-in OTLP trace receiver (unless an endpoint is configured)
-/// and points this process's exporter at it.
-async fn trace_receiver(data_dir: &std::path::Path, token: &CancellationToken, ephemeral: bool) -> anyhow::Result<()> {
-    if telemetry::otlp_endpoint().is_some() {
-        return Ok(());
-    }
-    let addr = SocketAddr::from(([127, 0, 0, 1], if ephemeral { 0 } else { ports::TRACE_RECEIVER }));
-    let listener = match TcpListener::bind(addr).await {
-        Ok(l) => l,
-        Err(_) => TcpListener::bind(SocketAddr::from(([127, 0, 0, 1], 0))).await?,
-    };
-    let endpoint = format!("http://{}", listener.local_addr()?);
-    // SAFETY: set before any other thread reads the environment (telemetry is not yet initialised).
-    unsafe { std::env::set_var("OTEL_EXPORTER_OTLP_ENDPOINT", &endpoint) };
-    let store = std::sync::Arc::new(vlnav_traces::SpanStore::open(data_dir.join("traces"))?);
-    let token = token.clone();
-    tokio::spawn(async move {
-        if let Err(e) = vlnav_traces::serve_receiver(listener, store, token).await {
-            tracing::error!("trace receiver stopped: {e}");
-        }
-    });
-    Ok(())
+    #[command(flatten)]
+    gateway: GatewayOptions,
+    #[command(flatten)]
+    server: ServerConfig,
 }
 
 #[tokio::main]
-async fn main() {
-    if let Err(e) = run(Cli::parse()).await {
-        eprintln!("vlnav: {e:#}");
-        std::process::exit(1);
-    }
-}
-
-async fn run(cli: Cli) -> anyhow::Result<()> {
-    match cli.cmd {
-        Cmd::Up(args) => {
-            let receiver = CancellationToken::new();
-            trace_receiver(&args.data_dir, &receiver, args.ephemeral_ports).await?;
-            let telemetry = telemetry::init("vlnav")?;
-            let stack = up(&args).await?;
-            eprintln!("vlnav is up: gateway on {} (Ctrl-C to stop)", stack.gateway_addr);
-            let token = stack.token();
-            tokio::spawn(async move {
-                vlnav_runtime::shutdown_signal().await;
-                token.cancel();
-            });
-            let result = stack.wait().await;
-            drop(telemetry);
-            receiver.cancel();
-            result
-        }
-        Cmd::Gateway { server, opts } => {
-            vlnav_runtime::serve_main("vlnav-gateway", ports::GATEWAY, server, async {
-                Ok(Gateway::new(&opts)?.services(&ServerConfig::default()))
-            })
-            .await
-        }
-        Cmd::Mission(args) => {
-            let mission = run_mission(&args, &mut std::io::stdout()).await?;
-            let ok = matches!(mission.state, 4 | 7);
-            if !ok {
-                std::process::exit(2);
-            }
-            Ok(())
-        }
-        Cmd::Demo { instruction, up: args } => {
-            let receiver = CancellationToken::new();
-            trace_receiver(&args.data_dir, &receiver, args.ephemeral_ports).await?;
-            let telemetry = telemetry::init("vlnav")?;
-            let stack = up(&args).await?;
-            let mission_args = MissionArgs {
-                text: Some(instruction),
-                audio: None,
-                robot: args.robot_id.clone(),
-                gateway: stack.gateway_uri(),
-                dry_run: false,
-            };
-            wait_for_robot(&stack.gateway_uri(), &args.robot_id).await?;
-            let mission = run_mission(&mission_args, &mut std::io::stdout()).await;
-            telemetry.flush();
-            // Give the batch exporter a moment to deliver the last spans.
-            tokio::time::sleep(std::time::Duration::from_millis(600)).await;
-            if let Ok(m) = &mission {
-                let source = vlnav_traces::SpanSource::Dir(args.data_dir.join("traces"));
-                match vlnav_traces::cli::profile_trace(&source, &m.trace_id, vlnav_traces::CONTROL_CYCLE).await {
-                    Ok(report) => println!("\n{report}"),
-                    Err(e) => eprintln!("(no latency profile: {e})"),
-                }
-            }
-            stack.shutdown().await?;
-            // Exporters flush on drop: before their receiver goes away.
-            drop(telemetry);
-            receiver.cancel();
-            let mission = mission?;
-            if mission.state != vlnav_proto::v1::MissionState::Succeeded as i32 {
-                anyhow::bail!("the demo mission did not succeed: {}", mission.reason);
-            }
-            Ok(())
-        }
-        Cmd::Eval(args) => {
-            let _telemetry = telemetry::init("vlnav")?;
-            let data = args.out.join("gateway");
-            let up_args = UpArgs {
-                no_robot: true,
-                ephemeral_ports: true,
-                data_dir: data,
-                perception: args.perception,
-                ..UpArgs::default()
-            };
-            let stack = up(&up_args).await?;
-            let report = vlnav_eval::run_eval(args, stack.gateway_uri()).await;
-            stack.shutdown().await?;
-            report.map(|_| ())
-        }
-        Cmd::Profile(args) => {
-            println!("{}", vlnav_traces::run_profile(args).await?);
-            Ok(())
-        }
-        Cmd::Detect(args) => {
-            tokio::task::spawn_blocking(move || vlnav_detector::cli::run_detect(&args, &mut std::io::stdout()))
-                .await??;
-            Ok(())
-        }
-        Cmd::CalibratePerception(args) => {
-            let summary = tokio::task::spawn_blocking(move || vlnav_eval::calibrate::run(&args)).await??;
-            print!("{summary}");
-            Ok(())
-        }
-    }
-}
-
-/// Waits (up to 30 s) until the robot has attached to the gateway.
-async fn wait_for_robot(gateway: &str, robot_id: &str) -> anyhow::Result<()> {
-    use vlnav_proto::v1::{ListRobotsRequest, fleet_service_client::FleetServiceClient};
-    let mut client = FleetServiceClient::connect(gateway.to_string()).await?;
-    for _ in 0..300 {
-        let robots = client.list_robots(ListRobotsRequest {}).await?.into_inner().robots;
-        if robots.iter().any(|r| r.robot_id == robot_id && r.connected && r.frames_received > 0) {
-            return Ok(());
-        }
-        tokio::time::sleep(std::time::Duration::from_millis(100)).await;
-    }
-    anyhow::bail!("robot {robot_id} did not attach within 30 s")
+async fn main() -> anyhow::Result<()> {
+    let cli = Cli::parse();
+    let build = async { Ok(Gateway::new(&cli.gateway)?.services(&ServerConfig::default())) };
+    vlnav_runtime::serve_main("vlnav-gateway", ports::GATEWAY, cli.server.clone(), build).await
 }

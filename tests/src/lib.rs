@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use vlnav_gateway::up::{Stack, UpArgs, up};
+use vlnav::up::{Stack, UpArgs, up};
 use vlnav_proto::v1::{
     GetMissionRequest, ListRobotsRequest, Mission, MissionEvent, WatchMissionRequest,
     fleet_service_client::FleetServiceClient, mission_service_client::MissionServiceClient,

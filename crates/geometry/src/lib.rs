@@ -2,7 +2,7 @@
 //! that no service crate depends on another.
 //!
 //! - [`pose`]: the planar pose [`Pose2`] and its composition, the one angle
-//!   wrap [`wrap_angle`], the goal [`GoalSpec`];
+//!   wrap [`wrap_angle`], the goal [`GoalSpec`], the body velocity [`Twist`];
 //! - [`camera`]: the RGB-D camera model (pinhole, mount) and the
 //!   [`Projector`](camera::Projector) from pixels with depth to `base_link`
 //!   and back;
@@ -21,4 +21,4 @@ pub mod depth;
 pub mod pose;
 pub mod rgb;
 
-pub use pose::{GoalSpec, Pose2, wrap_angle};
+pub use pose::{GoalSpec, Pose2, Twist, wrap_angle};

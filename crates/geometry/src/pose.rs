@@ -92,6 +92,23 @@ pub struct GoalSpec {
     pub rotation_only: bool,
 }
 
+/// A planar body velocity: forward m/s, yaw rate rad/s (counter-clockwise).
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct Twist {
+    pub linear: f64,
+    pub angular: f64,
+}
+
+impl Twist {
+    pub const ZERO: Twist = Twist { linear: 0.0, angular: 0.0 };
+    pub const fn new(linear: f64, angular: f64) -> Self {
+        Self { linear, angular }
+    }
+    pub fn is_zero(&self) -> bool {
+        self.linear == 0.0 && self.angular == 0.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

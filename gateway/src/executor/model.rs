@@ -6,7 +6,7 @@ use nalgebra::Vector3;
 use vlnav_geometry::camera::Camera;
 pub use vlnav_geometry::{GoalSpec as Goal, Pose2};
 
-pub use vlnav_edge_agent::Twist;
+pub use vlnav_geometry::Twist;
 
 /// One sensor frame as the state machine sees it: when, where, and how the
 /// camera looks. Pixels stay with the adapter, which hands them to the stages.

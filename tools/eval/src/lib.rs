@@ -41,7 +41,7 @@ use crate::runner::{RunContext, TrialSettings};
 use crate::suite::Suite;
 
 /// The suite shipped in this crate, relative to the repository root.
-pub const DEFAULT_SUITE: &str = "gateway/eval/scenarios/suite.toml";
+pub const DEFAULT_SUITE: &str = "tools/eval/scenarios/suite.toml";
 
 /// `vlnav eval` settings (flags or `VLNAV_EVAL_*` environment variables).
 #[derive(clap::Args, Clone, Debug)]

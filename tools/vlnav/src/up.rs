@@ -10,8 +10,8 @@ use tokio::task::JoinSet;
 use vlnav_runtime::perception::PerceptionMode;
 use vlnav_runtime::{CancellationToken, ServerConfig, ServiceSet, ports};
 
-use crate::api::Gateway;
-use crate::config::{GatewayOptions, StagePorts};
+use vlnav_gateway::api::Gateway;
+use vlnav_gateway::config::{GatewayOptions, StagePorts};
 
 #[derive(clap::Args, Clone, Debug)]
 pub struct UpArgs {

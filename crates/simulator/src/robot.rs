@@ -12,23 +12,7 @@ use rand_distr::{Distribution, Normal};
 use serde::Deserialize;
 
 use crate::geometry::{Pose2, Vec2, wrap_angle};
-
-/// A planar body velocity: forward m/s, yaw rate rad/s (counter-clockwise).
-#[derive(Clone, Copy, Debug, PartialEq, Default)]
-pub struct Twist {
-    pub linear: f64,
-    pub angular: f64,
-}
-
-impl Twist {
-    pub const ZERO: Twist = Twist { linear: 0.0, angular: 0.0 };
-    pub const fn new(linear: f64, angular: f64) -> Self {
-        Self { linear, angular }
-    }
-    pub fn is_zero(&self) -> bool {
-        self.linear == 0.0 && self.angular == 0.0
-    }
-}
+pub use vlnav_geometry::Twist;
 
 /// The platform's geometry and limits (Husky A200 defaults: `husky_control`
 /// limits 1.0 m/s, 2.0 rad/s, 3.0 m/s², 6.0 rad/s²; footprint 0.988 × 0.670 m).

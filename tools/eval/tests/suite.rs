@@ -33,7 +33,7 @@ fn the_suite_covers_the_papers_tables() {
         assert!(sc.instructions.len() >= 2, "{} carries fewer than two instructions", sc.name);
     }
     let lab = s.scenario("lab").unwrap();
-    assert!(lab.world.ends_with("services/simulator/scenarios/lab.toml"), "the lab is the simulator's own world");
+    assert!(lab.world.ends_with("crates/simulator/scenarios/lab.toml"), "the lab is the simulator's own world");
 }
 
 #[test]

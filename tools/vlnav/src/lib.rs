@@ -1,0 +1,12 @@
+//! The `vlnav` command's library: what the command line and the end-to-end
+//! tests share.
+//!
+//! - [`up`]: every stage service and the gateway in one process, each on its
+//!   own loopback port and talking real gRPC to the others, plus a simulated
+//!   Husky attached through the edge agent (`vlnav up`, `vlnav demo`, the
+//!   evaluation's stack);
+//! - [`mission`]: the mission client (`vlnav mission`): submit an
+//!   instruction, follow the mission's events, print a summary.
+
+pub mod mission;
+pub mod up;
