@@ -183,6 +183,12 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
         }
         record.odom_path_length_m = m.odom_path_length_m;
     }
+    // The gateway's figure for a timed-out trial runs on to whichever frame
+    // the cancellation landed on; count it over the trial's frames instead,
+    // which end at the budget.
+    if record.outcome == Outcome::TimedOut {
+        record.odom_path_length_m = odom_path_length(&steps);
+    }
 
     let track = truth_track(&loaded.world, &steps);
     if let (Some(first), Some(last)) = (steps.first(), steps.last()) {
@@ -229,6 +235,12 @@ fn truth_track(world: &World, steps: &[StepRecord]) -> Vec<TruthSample> {
             })
         })
         .collect()
+}
+
+/// Odometry path length over `frames` as the gateway's metrics count it: the
+/// distance between consecutive odometry positions.
+fn odom_path_length(frames: &[StepRecord]) -> f64 {
+    frames.windows(2).map(|w| (w[1].odom.x - w[0].odom.x).hypot(w[1].odom.y - w[0].odom.y)).sum()
 }
 
 /// The odom frame's world origin in force at `stamp` (the last sample at or before it).
