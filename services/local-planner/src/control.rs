@@ -38,24 +38,42 @@
 //!   (backwards only where no remembered cell lies behind it), and reports
 //!   BLOCKED where it can do neither, rather than grinding a corner along a
 //!   parked car during a look-around.
+//! - Footprint guard: the paths keep a 0.45 m tube around the robot's centre
+//!   clear, but the Husky's corners reach 0.60 m, and a path that grazes an
+//!   obstacle diagonally ahead (or a goal beside a parked car) lets a corner
+//!   or the swinging rear touch it. Before a command goes out, the robot's
+//!   rectangle (`half_length_m` × `half_width_m`, plus `guard_margin_m`) is
+//!   moved along the commanded arc for one frame period plus the distance
+//!   needed to stop (`v / 2·max_accel`); if it would take in a blocking cell
+//!   (≥ 2 voxels, this frame's or remembered) that it does not already
+//!   cover, the command is reduced — the turn alone, the straight part
+//!   alone, or a stop. A robot stopped by the guard within the goal's
+//!   position tolerance has reached it (as close as its body fits); farther
+//!   away, the progress watchdog takes over.
 //! - Obstacle memory: the camera sees ±43°, so an obstacle leaves the view as
 //!   soon as the robot turns away from it, and a plan made without it would
-//!   turn straight back. Cells of recent frames (`memory_s`, 3 s of sensor
-//!   time; `near_memory_s`, 30 s, for cells within `near_memory_m`, 1 m, of
-//!   the robot, which a turn in place must not forget) are kept in `odom` and
+//!   turn straight back. Cells of recent frames, one per 5 cm `odom` voxel
+//!   (`memory_s`, 20 s of sensor time — the D455 sees nothing nearer than
+//!   its minimum range, so a sofa corner seen on the way in must still be
+//!   known when the robot turns beside it; `near_memory_s`, 120 s, for cells within `near_memory_m`, 1 m, of
+//!   the robot, which a turn in place must not forget: a robot that waits
+//!   beside a parked car while it searches must not forget the car) are kept in `odom` and
 //!   merged into the plan unless the current frame measured that place: a
 //!   remembered cell is forgotten only where it lies inside the view and the
 //!   frame's depth reached it along its bearing (`cloud::SeenRange`, within
 //!   `memory_seen_margin_m`), so an obstacle that moved away is forgotten
 //!   but one behind a stereo occlusion band — no depth left of a near edge,
 //!   docs/perception.md — is not. (Forgetting everything inside the view's
-//!   angle let the robot graze tunnel walls it had just seen.) The memory is
-//!   dropped when the odometry jumps (a reset at a reached subgoal) or time
-//!   runs backwards.
+//!   angle let the robot graze tunnel walls it had just seen.) When the
+//!   odometry jumps (re-anchored at a reached subgoal, where the robot
+//!   stands still) the memory moves with it: each cell keeps its place
+//!   relative to the robot. It is dropped when time runs backwards.
 //! - No progress: while moving, if the distance to the goal has not dropped
 //!   by `progress_distance` (0.1 m) within `progress_window_s` (5 s of sensor
 //!   time), the step reports NO_PROGRESS once with a stop and the window
 //!   restarts, so the mission executor can recover instead of hanging.
+
+use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::Vector2;
 use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
@@ -110,6 +128,8 @@ pub struct FollowParams {
     pub half_width_m: f64,
     /// Speed of the straight move that clears the sweep disc, m/s.
     pub escape_speed: f64,
+    /// Margin around the footprint the guard keeps free, m (one voxel).
+    pub guard_margin_m: f64,
 }
 
 impl Default for FollowParams {
@@ -132,16 +152,17 @@ impl Default for FollowParams {
             progress_distance: 0.1,
             progress_window_s: 5.0,
             nominal_period_s: 0.2,
-            memory_s: 3.0,
+            memory_s: 20.0,
             memory_near_m: 0.6,
             memory_range_m: 4.25,
             memory_seen_margin_m: 0.05,
             near_memory_m: 1.0,
-            near_memory_s: 30.0,
+            near_memory_s: 120.0,
             sweep_radius_m: 0.65,
             half_length_m: 0.495,
             half_width_m: 0.335,
             escape_speed: 0.15,
+            guard_margin_m: 0.05,
         }
     }
 }
@@ -226,7 +247,9 @@ pub struct RobotState {
     pub last_selection: Option<Selection>,
     /// The chosen path in odom, for the course it set.
     last_path_odom: Vec<Vector2<f64>>,
-    memory: Vec<Remembered>,
+    /// One remembered cell per `odom` voxel, the newest (ordered, so that
+    /// runs are reproducible).
+    memory: BTreeMap<(i32, i32), Remembered>,
     last_pose: Option<Pose2>,
     scratch: Scratch,
 }
@@ -262,6 +285,52 @@ impl RobotState {
     }
 }
 
+impl RobotState {
+    /// Whether the arc (v, ω) held for `horizon` s brings a blocking cell
+    /// into the (margin-inflated) footprint that it does not cover now.
+    fn footprint_hits(&self, v: f64, w: f64, horizon: f64, p: &FollowParams) -> bool {
+        const SAMPLES: usize = 6;
+        let (hl, hw) = ((p.half_length_m + p.guard_margin_m) as f32, (p.half_width_m + p.guard_margin_m) as f32);
+        let inside = |x: f32, y: f32| x.abs() <= hl && y.abs() <= hw;
+        let poses: Vec<(f32, f32, f32, f32)> = (1..=SAMPLES)
+            .map(|k| {
+                let t = horizon * k as f64 / SAMPLES as f64;
+                let th = w * t;
+                let (x, y) = if w.abs() < 1e-6 { (v * t, 0.0) } else { (v / w * th.sin(), v / w * (1.0 - th.cos())) };
+                (x as f32, y as f32, th.cos() as f32, th.sin() as f32)
+            })
+            .collect();
+        let reach = (hl * hl + hw * hw).sqrt() + (v.abs() * horizon) as f32;
+        self.cloud
+            .cells
+            .iter()
+            .filter(|c| c.blocking >= 2 && c.x * c.x + c.y * c.y <= reach * reach && !inside(c.x, c.y))
+            .any(|c| {
+                poses.iter().any(|&(x, y, cs, sn)| {
+                    let (dx, dy) = (c.x - x, c.y - y);
+                    inside(cs * dx + sn * dy, -sn * dx + cs * dy)
+                })
+            })
+    }
+
+    /// The command itself if its arc keeps the footprint clear, else the
+    /// first clear of: the turn alone, the straight part alone, a stop.
+    fn guard(&self, v: f64, w: f64, dt: f64, p: &FollowParams) -> (f64, f64) {
+        let horizon = |v: f64| dt + v.abs() / (2.0 * p.max_accel);
+        [(v, w), (0.0, w), (v, 0.0)]
+            .into_iter()
+            .find(|&(v, w)| (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, horizon(v), p))
+            .unwrap_or((0.0, 0.0))
+    }
+}
+
+/// Side of the `odom` grid the memory keeps one cell per, m (the cloud's voxel).
+const MEMORY_VOXEL: f64 = 0.05;
+
+fn memory_key(at: &Vector2<f64>) -> (i32, i32) {
+    ((at.x / MEMORY_VOXEL).floor() as i32, (at.y / MEMORY_VOXEL).floor() as i32)
+}
+
 fn clamp_turn(rate: f64, error: f64, p: &FollowParams, dt: f64) -> f64 {
     // Never turn past the target bearing within one frame period, nor faster
     // than lets the robot still stop on it.
@@ -274,25 +343,29 @@ impl RobotState {
     /// memory becomes this frame's cells and the still-valid old ones.
     fn merge_memory(&mut self, cloud: &ObstacleCloud, input: &StepInput<'_>, p: &FollowParams) -> ObstacleCloud {
         let mut cells = cloud.cells.clone();
-        let mut kept = Vec::with_capacity(self.memory.len() + cloud.cells.len());
-        for m in self.memory.drain(..) {
+        let now: Vec<((i32, i32), Remembered)> = cloud
+            .cells
+            .iter()
+            .map(|c| {
+                let at = input.pose.transform(&Vector2::new(c.x as f64, c.y as f64));
+                (memory_key(&at), Remembered { at, cell: *c, stamp: input.stamp })
+            })
+            .collect();
+        let current: BTreeSet<(i32, i32)> = now.iter().map(|(k, _)| *k).collect();
+        self.memory.retain(|k, m| {
             let b = input.pose.inverse_transform(&m.at);
             let age = input.stamp - m.stamp;
-            if age > p.memory_s && !(age <= p.near_memory_s && b.norm() <= p.near_memory_m) {
-                continue;
+            if current.contains(k) || (age > p.memory_s && !(age <= p.near_memory_s && b.norm() <= p.near_memory_m)) {
+                return false;
             }
             let measured = cloud.seen.as_ref().is_none_or(|s| s.reaches(&b, p.memory_seen_margin_m));
             if b.norm() > p.memory_range_m || (measured && input.view.sees(&b, p.memory_near_m)) {
-                continue;
+                return false;
             }
             cells.push(Cell { x: b.x as f32, y: b.y as f32, ..m.cell });
-            kept.push(m);
-        }
-        for c in &cloud.cells {
-            let at = input.pose.transform(&Vector2::new(c.x as f64, c.y as f64));
-            kept.push(Remembered { at, cell: *c, stamp: input.stamp });
-        }
-        self.memory = kept;
+            true
+        });
+        self.memory.extend(now);
         ObstacleCloud { cells, raw_points: cloud.raw_points, seen: cloud.seen.clone() }
     }
 
@@ -311,8 +384,16 @@ impl RobotState {
         let jumped = self
             .last_pose
             .is_some_and(|q| (q.position() - input.pose.position()).norm() > 0.5 + 2.0 * p.max_speed * dt);
-        if time_went_back || jumped {
+        if time_went_back {
             self.memory.clear();
+            self.last_path_odom.clear();
+        } else if let (true, Some(last)) = (jumped, self.last_pose) {
+            // Re-anchored odometry: the robot has not moved, its frame has.
+            let old = std::mem::take(&mut self.memory);
+            for (_, mut m) in old {
+                m.at = input.pose.transform(&last.inverse_transform(&m.at));
+                self.memory.insert(memory_key(&m.at), m);
+            }
             self.last_path_odom.clear();
         }
         self.last_pose = Some(input.pose);
@@ -422,7 +503,15 @@ impl RobotState {
         } else {
             (self.last_speed - p.max_accel * dt).max(0.0).min(target)
         };
+        let (v, w) = self.guard(v, out.angular, dt, p);
+        if v == 0.0 && w == 0.0 && distance <= goal.position_tolerance {
+            // As close as the body fits.
+            self.rotating = false;
+            out.angular = 0.0;
+            return stop(self, out, StepStatus::Reached);
+        }
         out.linear = v;
+        out.angular = w;
         self.last_path_odom = sel.points.iter().step_by(5).map(|q| input.pose.transform(q)).collect();
         out.selection = Some(sel.clone());
         self.last_selection = Some(sel);
@@ -524,6 +613,47 @@ mod tests {
         let mut state = RobotState::default();
         remembered_after(&mut state, &seen_wall, 0.0);
         assert_eq!(remembered_after(&mut state, &ObstacleCloud::default(), 0.2), 0);
+    }
+
+    fn with_cells(cells: &[(f32, f32)]) -> RobotState {
+        let cells = cells.iter().map(|&(x, y)| Cell { x, y, blocking: 3, low: false, no_go: false }).collect();
+        RobotState { cloud: ObstacleCloud { cells, ..ObstacleCloud::default() }, ..RobotState::default() }
+    }
+
+    #[test]
+    fn the_guard_keeps_the_footprint_off_obstacles_the_path_tube_misses() {
+        let p = FollowParams::default();
+        // A post diagonally ahead, 0.45 m to the left: clear of the straight
+        // footprint (half-width 0.335 + 0.05), but driving a left arc swings
+        // the front-left corner into it. Turning on the spot (one frame) is
+        // clear, so the forward part waits.
+        let post = with_cells(&[(0.6, 0.45)]);
+        assert_eq!(post.guard(0.5, 1.0, 0.2, &p), (0.0, 1.0));
+        // With the spot turn also blocked (a second post where the rear-right
+        // corner swings), the
+        // straight part alone is left.
+        let posts = with_cells(&[(0.6, 0.45), (-0.45, -0.45)]);
+        assert_eq!(posts.guard(0.5, 1.0, 0.2, &p), (0.5, 0.0));
+        // Turning away from it is fine.
+        assert_eq!(post.guard(0.5, -1.0, 0.2, &p), (0.5, -1.0));
+        // A wall straight ahead within a frame and the stopping distance: stop.
+        let wall = with_cells(&[(0.8, -0.1), (0.8, 0.0), (0.8, 0.1)]);
+        assert_eq!(wall.guard(0.6, 0.0, 0.2, &p), (0.0, 0.0));
+        // Far enough ahead to stop before it: go on.
+        let far = with_cells(&[(1.6, 0.0)]);
+        assert_eq!(far.guard(0.6, 0.0, 0.2, &p), (0.6, 0.0));
+        // A cell the footprint already covers does not freeze the robot.
+        let touching = with_cells(&[(0.3, 0.2)]);
+        assert_eq!(touching.guard(-0.15, 0.0, 0.2, &p), (-0.15, 0.0));
+        // One voxel is noise, not an obstacle.
+        let ghost = RobotState {
+            cloud: ObstacleCloud {
+                cells: vec![Cell { x: 0.7, y: 0.0, blocking: 1, low: false, no_go: false }],
+                ..ObstacleCloud::default()
+            },
+            ..RobotState::default()
+        };
+        assert_eq!(ghost.guard(0.5, 0.0, 0.2, &p), (0.5, 0.0));
     }
 
     #[test]

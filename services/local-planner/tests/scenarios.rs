@@ -318,6 +318,25 @@ fn speed_ramps_with_frame_stamps() {
 }
 
 #[test]
+fn memory_follows_the_odometry_when_it_is_re_anchored() {
+    let params = FollowParams::default();
+    let mut state = RobotState::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    let post = builder.from_points(&[[1.5, 0.8, 0.3], [1.5, 0.8, 0.5]], &[]);
+    let empty = builder.from_points(&[], &[]);
+    let input =
+        |stamp, pose, cloud, view| StepInput { stamp, pose, goal: goal_at(9.0, 0.0, 0.3), cloud, max_speed: 0.0, view };
+    state.step(planner(), &params, input(0.0, Pose2::new(5.0, 2.0, 0.3), &post, VIEW));
+    // A subgoal is reached and odometry re-anchored at the origin; the robot
+    // has not moved, and the post (now out of view) is where it was relative to it.
+    let behind = View { yaw: std::f64::consts::PI, ..VIEW };
+    state.step(planner(), &params, input(0.2, Pose2::new(0.0, 0.0, 0.0), &empty, behind));
+    assert_eq!(state.cloud.cells.len(), 1);
+    let c = state.cloud.cells[0];
+    assert!((c.x - 1.5).abs() < 0.06 && (c.y - 0.8).abs() < 0.06, "the post moved to ({}, {})", c.x, c.y);
+}
+
+#[test]
 fn obstacles_out_of_view_are_remembered_for_a_while() {
     let params = FollowParams::default();
     let mut state = RobotState::default();
@@ -334,12 +353,15 @@ fn obstacles_out_of_view_are_remembered_for_a_while() {
     let empty = builder.from_points(&[], &[]);
     // Turned away: the post is merged from memory.
     assert_eq!(step(0.2, 1.5, &empty), 1);
-    assert_eq!(step(2.9, 1.5, &empty), 1);
-    // Expired after 3 s of sensor time.
-    assert_eq!(step(3.1, 1.5, &empty), 0);
+    assert_eq!(step(19.9, 1.5, &empty), 1);
+    // Expired after `memory_s` (20 s) of sensor time.
+    assert_eq!(step(20.1, 1.5, &empty), 0);
+    // Seen on two frames, then out of view: remembered once, not once per frame.
+    assert_eq!(step(20.2, 0.0, &seen), 1);
+    assert_eq!(step(20.4, 0.0, &seen), 1);
+    assert_eq!(step(20.6, 1.5, &empty), 1);
     // Back in view and gone: the current frame wins at once.
-    assert_eq!(step(3.2, 0.0, &seen), 1);
-    assert_eq!(step(3.4, 0.0, &empty), 0);
+    assert_eq!(step(20.8, 0.0, &empty), 0);
 }
 
 #[test]

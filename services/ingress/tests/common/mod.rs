@@ -63,7 +63,10 @@ pub fn speak(text: &str) -> Vec<u8> {
 pub type Served = Connected<IngressServiceClient<Channel>>;
 
 pub async fn serve(opts: Options) -> Served {
-    let cfg = ServerConfig::default();
+    // The tests check what is heard, not how fast: 35 s of speech in a debug
+    // build on a loaded 2-core machine can take longer than the server's
+    // default 30 s request timeout. CALL_TIMEOUT still bounds every call.
+    let cfg = ServerConfig { request_timeout_s: CALL_TIMEOUT.as_secs_f64(), ..ServerConfig::default() };
     let services = vlnav_ingress::services(&opts, &cfg).await.expect("ingress services start");
     testing::start_client(&cfg, services, IngressServiceClient::new)
         .await
