@@ -11,13 +11,15 @@ use vlnav_eval::metrics::Mode;
 
 /// scenario, trial, outcome, success, success at 0.25 m, stopping error (m,
 /// 2 decimals), hard contact. Garage trial 1 ("stop 1.5 m before the
-/// motorcycle") ends at the bicycle: the measured detector takes it for a
-/// motorcycle often enough to outvote the bicycle label there.
+/// motorcycle") goes to the bicycle: the measured detector takes it for a
+/// motorcycle often enough to outvote the bicycle label there. Since the
+/// footprint guard and the longer obstacle memory it no longer finishes the
+/// step there: it runs out of time 5.5 m from the motorcycle.
 const PINNED: &str = "garage 0 succeeded true true +0.04 0\n\
-garage 1 succeeded false false +6.95 0\n\
+garage 1 timed_out false false +5.51 0\n\
 precise 0 succeeded true true +0.02 0\n\
 precise 1 succeeded true true +0.03 0\n\
-symmetric 0 succeeded true true +0.08 0\n\
+symmetric 0 succeeded true true +0.07 0\n\
 symmetric 1 succeeded true true +0.07 0";
 
 fn args(out: &std::path::Path) -> vlnav_eval::EvalArgs {
