@@ -318,6 +318,25 @@ fn speed_ramps_with_frame_stamps() {
 }
 
 #[test]
+fn a_goal_whose_footprint_holds_a_wall_is_moved_sideways_out_of_it() {
+    // A wall whose face runs along y = 0.32 (the wall behind a hydrant), the
+    // goal 2.5 m ahead on y = 0 facing +x: the robot's body (half-width
+    // 0.335 m) would overlap the wall there. The goal moves right, across its
+    // heading, and the robot stops clear of the wall, its distance ahead kept.
+    let mut world = World::default();
+    world.add_box(0.8, 0.32, 4.0, 0.42, 1.0);
+    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(2.5, 0.0, 0.3), 200);
+    let last = run.outputs.last().expect("frames");
+    let end = *run.poses.last().expect("poses");
+    assert_eq!(last.status, StepStatus::Reached, "the robot stopped at {end:?}");
+    // The body's left edge (the centre's y + 0.335, heading within a few degrees) clears the wall.
+    let left_edge = end.y + 0.335 * end.theta.cos() + 0.495 * end.theta.sin().abs();
+    assert!(left_edge < 0.32, "the robot ends at {end:?}, its left side at y = {left_edge:.3}");
+    assert!(end.y > -0.45, "moved farther than needed: {end:?}");
+    assert!((end.x - 2.5).abs() < 0.1, "the distance ahead changed: {end:?}");
+}
+
+#[test]
 fn memory_follows_the_odometry_when_it_is_re_anchored() {
     let params = FollowParams::default();
     let mut state = RobotState::default();
