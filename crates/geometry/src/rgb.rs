@@ -5,6 +5,9 @@
 //! Decoding a JPEG or PNG takes milliseconds of CPU; async callers use
 //! [`decode_off_thread`] / [`decode_all_off_thread`], which run it on
 //! tokio's blocking pool instead of an async worker thread.
+//!
+//! Also the one photometric jitter ([`jitter_colour`]) the calibration and
+//! the ReID tests apply to cut-out photos.
 
 use image::RgbImage;
 
@@ -39,6 +42,21 @@ pub enum ImageError {
 
 /// Largest side accepted (a D455 frame is 1280×800 at most; photos are larger).
 pub const MAX_SIDE: u32 = 8192;
+
+/// Photometric jitter as training pipelines apply it: scale by
+/// `brightness`, move each channel toward or away from the pixel's grey
+/// (ITU-R BT.601 luma) by `saturation`, and stretch around mid-grey by
+/// `contrast`; 1.0 leaves a factor out.
+pub fn jitter_colour(img: &mut RgbImage, brightness: f32, contrast: f32, saturation: f32) {
+    for p in img.pixels_mut() {
+        let [r, g, b] = p.0.map(|c| c as f32 * brightness);
+        let grey = 0.299 * r + 0.587 * g + 0.114 * b;
+        p.0 = [r, g, b].map(|c| {
+            let c = grey + (c - grey) * saturation;
+            (128.0 + (c - 128.0) * contrast).clamp(0.0, 255.0) as u8
+        });
+    }
+}
 
 /// Decodes an image into 8-bit RGB. PNG and JPEG in grey, grey+alpha, RGB or
 /// RGBA are converted (alpha dropped); a non-zero `width`/`height` must match

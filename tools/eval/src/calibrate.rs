@@ -552,14 +552,7 @@ fn augmented_crop(img: &RgbImage, b: &Detection, rng: &mut Rng, mirror: bool) ->
         crop = image::imageops::flip_horizontal(&crop);
     }
     let (brightness, contrast, saturation) = (rng.range(0.85, 1.15), rng.range(0.85, 1.15), rng.range(0.85, 1.15));
-    for p in crop.pixels_mut() {
-        let [r, g, b] = p.0.map(|c| c as f32 * brightness);
-        let grey = 0.299 * r + 0.587 * g + 0.114 * b;
-        p.0 = [r, g, b].map(|c| {
-            let c = grey + (c - grey) * saturation;
-            (128.0 + (c - 128.0) * contrast).clamp(0.0, 255.0) as u8
-        });
-    }
+    vlnav_geometry::rgb::jitter_colour(&mut crop, brightness, contrast, saturation);
     crop
 }
 

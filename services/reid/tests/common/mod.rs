@@ -83,13 +83,6 @@ pub fn augmented_crop(img: &image::RgbImage, b: [f32; 4], seed: u64, mirror: boo
         crop = image::imageops::flip_horizontal(&crop);
     }
     let (brightness, contrast, saturation) = (uniform(0.85, 1.15), uniform(0.85, 1.15), uniform(0.8, 1.2));
-    for p in crop.pixels_mut() {
-        let [r, g, b] = p.0.map(|c| c as f32 * brightness);
-        let grey = 0.299 * r + 0.587 * g + 0.114 * b;
-        p.0 = [r, g, b].map(|c| {
-            let c = grey + (c - grey) * saturation;
-            (128.0 + (c - 128.0) * contrast).clamp(0.0, 255.0) as u8
-        });
-    }
+    vlnav_geometry::rgb::jitter_colour(&mut crop, brightness, contrast, saturation);
     crop
 }
