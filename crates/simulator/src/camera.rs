@@ -214,14 +214,15 @@ impl Renderer {
         Self::default()
     }
 
-    /// Renders the world at time `t` from a robot at `robot` (world frame)
-    /// into `frame`, drawing depth noise from `rng`.
+    /// Renders the world from a robot at `robot` (world frame), the world's
+    /// pedestrians standing at `people` (in the world's order), into
+    /// `frame`, drawing depth noise from `rng`.
     pub fn render<R: Rng>(
         &mut self,
         world: &World,
         cam: &CameraConfig,
         robot: &Pose2,
-        t: f64,
+        people: &[Vec2],
         rng: &mut R,
         frame: &mut Frame,
     ) {
@@ -249,7 +250,8 @@ impl Renderer {
         let left = Vec2::new(0.0, 1.0).rotate(cam_pose.theta);
 
         self.ped_shapes.clear();
-        self.ped_shapes.extend(world.pedestrians.iter().map(|p| p.shape_at(t)));
+        self.ped_shapes
+            .extend(world.pedestrians.iter().zip(people).map(|(p, c)| Shape::Circle { centre: *c, radius: p.radius }));
         let mut prisms: Vec<Prism> = Vec::with_capacity(world.solids.len() + world.pedestrians.len());
         prisms.extend(world.solids.iter().map(|s| Prism {
             entity: s.entity,

@@ -109,6 +109,32 @@ impl Shape {
         }
     }
 
+    /// The point of the outline nearest to `p`, and whether `p` is inside.
+    pub fn nearest_boundary_point(&self, p: Vec2) -> (Vec2, bool) {
+        match self {
+            Shape::Polygon(pts) => {
+                let n = pts.len();
+                let mut best = pts[0];
+                let mut best_d2 = f64::INFINITY;
+                for i in 0..n {
+                    let q = closest_on_segment(p, pts[i], pts[(i + 1) % n]);
+                    let d2 = (p - q).dot(p - q);
+                    if d2 < best_d2 {
+                        best_d2 = d2;
+                        best = q;
+                    }
+                }
+                (best, point_in_polygon(p, pts))
+            }
+            Shape::Circle { centre, radius } => {
+                let d = p - *centre;
+                let l = d.norm();
+                let dir = if l > 0.0 { d.scale(1.0 / l) } else { Vec2::new(1.0, 0.0) };
+                (*centre + dir.scale(*radius), l <= *radius)
+            }
+        }
+    }
+
     /// The intervals of the line `o + t·d` (all real t) inside the shape,
     /// sorted by `t_in`. `d` need not be unit length; `t` is in units of `d`.
     pub fn ray_spans(&self, o: Vec2, d: Vec2, out: &mut Vec<Span>) {
@@ -212,10 +238,15 @@ fn on_segment(a: Vec2, b: Vec2, p: Vec2) -> bool {
 
 /// Distance from `p` to the segment `a–b`.
 pub fn point_segment_distance(p: Vec2, a: Vec2, b: Vec2) -> f64 {
+    (p - closest_on_segment(p, a, b)).norm()
+}
+
+/// The point of the segment `a–b` nearest to `p`.
+pub fn closest_on_segment(p: Vec2, a: Vec2, b: Vec2) -> Vec2 {
     let ab = b - a;
     let l2 = ab.dot(ab);
     let t = if l2 == 0.0 { 0.0 } else { ((p - a).dot(ab) / l2).clamp(0.0, 1.0) };
-    (p - (a + ab.scale(t))).norm()
+    a + ab.scale(t)
 }
 
 /// Twice the signed area (positive when counter-clockwise).
@@ -267,6 +298,14 @@ impl OrientedRect {
     pub fn contains(&self, p: Vec2) -> bool {
         let q = self.pose.inverse_transform(&p.into());
         q.x.abs() <= self.half_length && q.y.abs() <= self.half_width
+    }
+
+    /// The point of the rectangle (boundary or inside) nearest to `p`; `p`
+    /// itself when it is inside.
+    pub fn nearest_point(&self, p: Vec2) -> Vec2 {
+        let q = self.pose.inverse_transform(&p.into());
+        let c = Vec2::new(q.x.clamp(-self.half_length, self.half_length), q.y.clamp(-self.half_width, self.half_width));
+        self.pose.transform(&c.into()).into()
     }
 
     /// Does the rectangle overlap (touch or contain, either way) the shape?

@@ -4,12 +4,14 @@
 //! - [`robot`]: skid-steer kinematics, velocity/acceleration limits, wheel slip;
 //! - [`camera`]: the D455 model and an exact column ray caster for the 2.5-D
 //!   world — RGB, depth (u16 mm) and instance labels;
+//! - [`crowd`]: walking people (social force), who step aside for the robot;
 //! - [`sim`]: the [`Simulator`] — steps physics, renders, keeps ground truth
 //!   (pose, path length, hard/soft collision events) apart from odometry.
 //!
 //! Pure Rust, no gRPC: the edge agent's `sim` driver wraps it.
 
 pub mod camera;
+pub mod crowd;
 pub mod geometry;
 pub mod robot;
 pub mod scenario;

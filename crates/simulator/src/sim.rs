@@ -5,7 +5,8 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::camera::{CameraConfig, Frame, Renderer};
-use crate::geometry::{OrientedRect, Pose2};
+use crate::crowd::Crowd;
+use crate::geometry::{OrientedRect, Pose2, Vec2};
 use crate::robot::{HuskyParams, RobotState, Twist, integrate};
 use crate::world::World;
 
@@ -24,8 +25,20 @@ pub struct Truth {
     pub path_length_m: f64,
     /// Contact events with walls, obstacles, objects or pedestrians.
     pub hard_collisions: u32,
+    /// Those of them the robot's own motion made (the rest: a person
+    /// walked into it). See `docs/simulation.md`, "Contact and its cause".
+    pub hard_collisions_by_robot: u32,
+    /// Contact events with pedestrians (included in `hard_collisions`).
+    pub pedestrian_contacts: u32,
+    pub pedestrian_contacts_by_robot: u32,
     /// Entries into restricted zones, hazards or onto cables.
     pub soft_collisions: u32,
+    /// The footprint touches something now.
+    pub in_hard_contact: bool,
+    /// The footprint lies in a no-go marking now.
+    pub in_no_go: bool,
+    /// Where each pedestrian is now, in the world's order.
+    pub pedestrians: Vec<Vec2>,
     /// World pose of the odometry frame's origin.
     pub odom_origin: Pose2,
 }
@@ -51,8 +64,12 @@ pub struct Simulator {
     steps: u64,
     path_length: f64,
     hard: u32,
+    hard_by_robot: u32,
+    pedestrian_contacts: u32,
+    pedestrian_contacts_by_robot: u32,
     soft: u32,
     touching: Vec<u16>,
+    crowd: Crowd,
     inside: Vec<u16>,
     physics_rng: ChaCha8Rng,
     camera_rng: ChaCha8Rng,
@@ -76,13 +93,18 @@ impl Simulator {
             steps: 0,
             path_length: 0.0,
             hard: 0,
+            hard_by_robot: 0,
+            pedestrian_contacts: 0,
+            pedestrian_contacts_by_robot: 0,
             soft: 0,
             touching: Vec::new(),
+            crowd: Crowd::default(),
             inside: Vec::new(),
             physics_rng,
             camera_rng,
             renderer: Renderer::new(),
         };
+        sim.crowd = Crowd::new(&sim.world);
         sim.inside = sim.markings_under(&sim.state.truth);
         sim
     }
@@ -129,6 +151,9 @@ impl Simulator {
         self.state.odom = m.odom;
         let candidate = OrientedRect::new(m.truth, self.params.length, self.params.width);
         let blocked = self.solids_overlapping(&candidate);
+        // What the robot's own motion reaches, with everything else where it was.
+        let robot_made = self.solids_overlapping(&candidate.inflate(CONTACT_MARGIN_M));
+        let previous = self.state.truth;
         let mut touching = if blocked.is_empty() {
             let moved = m.truth.distance(&self.state.truth);
             self.path_length += moved;
@@ -141,6 +166,11 @@ impl Simulator {
             self.state.truth_twist = Twist::ZERO;
             blocked
         };
+        if !self.world.pedestrians.is_empty() {
+            let body = OrientedRect::new(self.state.truth, self.params.length, self.params.width);
+            let velocity = Vec2::new(self.state.truth.x - previous.x, self.state.truth.y - previous.y).scale(1.0 / h);
+            self.crowd.step(&self.world, &body, velocity, h);
+        }
         let here = OrientedRect::new(self.state.truth, self.params.length, self.params.width).inflate(CONTACT_MARGIN_M);
         for id in self.solids_overlapping(&here) {
             if !touching.contains(&id) {
@@ -148,7 +178,14 @@ impl Simulator {
             }
         }
         touching.sort_unstable();
-        self.hard += touching.iter().filter(|id| !self.touching.contains(id)).count() as u32;
+        for &id in touching.iter().filter(|id| !self.touching.contains(id)) {
+            let by_robot = robot_made.contains(&id);
+            let person = self.world.pedestrians.iter().any(|p| p.entity == id);
+            self.hard += 1;
+            self.hard_by_robot += by_robot as u32;
+            self.pedestrian_contacts += person as u32;
+            self.pedestrian_contacts_by_robot += (person && by_robot) as u32;
+        }
         self.touching = touching;
 
         let inside = self.markings_under(&self.state.truth);
@@ -159,7 +196,14 @@ impl Simulator {
     fn solids_overlapping(&self, rect: &OrientedRect) -> Vec<u16> {
         let mut ids: Vec<u16> =
             self.world.solids.iter().filter(|s| rect.overlaps(&s.shape)).map(|s| s.entity).collect();
-        ids.extend(self.world.pedestrians.iter().filter(|p| rect.overlaps(&p.shape_at(self.time))).map(|p| p.entity));
+        ids.extend(
+            self.world
+                .pedestrians
+                .iter()
+                .zip(self.crowd.shapes(&self.world))
+                .filter(|(_, shape)| rect.overlaps(shape))
+                .map(|(p, _)| p.entity),
+        );
         ids.sort_unstable();
         ids.dedup();
         ids
@@ -182,7 +226,8 @@ impl Simulator {
 
     /// Renders the camera's view now into `frame` (reusing its buffers).
     pub fn render_into(&mut self, frame: &mut Frame) {
-        self.renderer.render(&self.world, &self.camera, &self.state.truth, self.time, &mut self.camera_rng, frame);
+        let people: Vec<Vec2> = self.crowd.positions().collect();
+        self.renderer.render(&self.world, &self.camera, &self.state.truth, &people, &mut self.camera_rng, frame);
     }
 
     pub fn render(&mut self) -> Frame {
@@ -198,7 +243,13 @@ impl Simulator {
             twist: self.state.truth_twist,
             path_length_m: self.path_length,
             hard_collisions: self.hard,
+            hard_collisions_by_robot: self.hard_by_robot,
+            pedestrian_contacts: self.pedestrian_contacts,
+            pedestrian_contacts_by_robot: self.pedestrian_contacts_by_robot,
             soft_collisions: self.soft,
+            in_hard_contact: !self.touching.is_empty(),
+            in_no_go: !self.inside.is_empty(),
+            pedestrians: self.crowd.positions().collect(),
             odom_origin: self.state.odom_origin,
         }
     }

@@ -323,3 +323,59 @@ fn pedestrians_move_and_are_rendered_as_persons() {
     assert_eq!(ped.class_id, 0);
     assert_eq!(ped.semantic, Semantic::Object);
 }
+
+/// A corridor 1.4 m wide: a person and the Husky cannot pass each other.
+const NARROW: &str = r#"
+name = "narrow"
+[robot]
+start = [1.0, 0.0, 0.0]
+[[walls]]
+path = [[-1, -0.7], [14, -0.7]]
+[[walls]]
+path = [[-1, 0.7], [14, 0.7]]
+[[pedestrians]]
+name = "walker"
+waypoints = [[12, 0], [-0.5, 0]]
+speed = 1.0
+"#;
+
+#[test]
+fn a_robot_driving_into_a_person_made_the_contact() {
+    let mut w = world(NARROW);
+    w.slip = SlipModel::none();
+    let mut sim = Simulator::new(w, 0);
+    for _ in 0..100 {
+        sim.step(Twist::new(0.8, 0.0), 0.1);
+    }
+    let t = sim.truth();
+    assert!(t.pedestrian_contacts >= 1, "{t:?}");
+    assert_eq!(t.pedestrian_contacts_by_robot, t.pedestrian_contacts, "the robot kept driving at the person");
+    assert_eq!(t.hard_collisions_by_robot, t.hard_collisions);
+    assert_eq!(t.pedestrians.len(), 1);
+}
+
+#[test]
+fn a_person_who_meets_a_stopped_robot_stops_short_and_one_who_runs_into_it_made_the_contact() {
+    let mut w = world(NARROW);
+    w.slip = SlipModel::none();
+    let mut sim = Simulator::new(w.clone(), 0);
+    for _ in 0..150 {
+        sim.step(Twist::ZERO, 0.1);
+    }
+    let t = sim.truth();
+    assert_eq!(t.hard_collisions, 0, "a walking person keeps off a robot that stands in the way");
+    let person = t.pedestrians[0];
+    assert!(person.x > 1.6 && person.x < 3.0, "waits in front of the robot: {person:?}");
+    // Someone running (2.8 m/s) cannot stop in time: contact, theirs.
+    let text = NARROW.replace("speed = 1.0", "speed = 2.8");
+    let mut w = world(&text);
+    w.slip = SlipModel::none();
+    let mut sim = Simulator::new(w, 0);
+    for _ in 0..80 {
+        sim.step(Twist::ZERO, 0.1);
+    }
+    let t = sim.truth();
+    assert!(t.pedestrian_contacts >= 1, "{t:?}");
+    assert_eq!(t.pedestrian_contacts_by_robot, 0);
+    assert_eq!(t.hard_collisions_by_robot, 0);
+}

@@ -206,6 +206,9 @@ struct FindRun {
     target: String,
     d_s: f64,
     moving: bool,
+    /// FOLLOW: how long to follow once the target is confirmed, s (the
+    /// plan's duration, or the configured default when it gives none).
+    follow_s: f64,
     /// Sightings of the last frames, newest in bit 0.
     recent: u64,
     /// Frames (same window) in which another class's box stood where the
@@ -225,8 +228,47 @@ struct FindRun {
     last_center: Option<(f32, f32)>,
     unseen: u32,
     last_seen: Option<f64>,
+    /// FOLLOW: the target's walking velocity (odom, m/s), from its fused
+    /// positions, and the fused position and stamp it was last measured from.
+    velocity: Option<Vector2<f64>>,
+    velocity_from: Option<(f64, Vector3<f64>)>,
     follow_until: Option<f64>,
     explore: Explore,
+}
+
+impl FindRun {
+    /// Where the target is now by its last sighting: the fused position, a
+    /// moving target carried on along its velocity for the time unseen
+    /// (at most `FOLLOW_PREDICT_S`).
+    fn predicted(&self, stamp: f64) -> Option<Vector3<f64>> {
+        let t = self.fused?;
+        match (self.moving, self.velocity, self.last_seen) {
+            (true, Some(v), Some(seen)) => {
+                let dt = (stamp - seen).clamp(0.0, FOLLOW_PREDICT_S);
+                Some(Vector3::new(t.x + v.x * dt, t.y + v.y * dt, t.z))
+            }
+            _ => Some(t),
+        }
+    }
+
+    /// Updates the velocity from a new fused position (moving targets only).
+    fn track(&mut self, stamp: f64, fused: Vector3<f64>) {
+        if !self.moving {
+            return;
+        }
+        match self.velocity_from {
+            Some((t0, p0)) if stamp - t0 >= VELOCITY_BASELINE_S => {
+                let v = Vector2::new(fused.x - p0.x, fused.y - p0.y) / (stamp - t0);
+                // People walk at up to about 2 m/s; faster is a bad estimate.
+                if v.norm() <= 2.0 {
+                    self.velocity = Some(self.velocity.map_or(v, |old| old * 0.5 + v * 0.5));
+                }
+                self.velocity_from = Some((stamp, fused));
+            }
+            Some(_) => {}
+            None => self.velocity_from = Some((stamp, fused)),
+        }
+    }
 }
 
 #[derive(Debug)]
@@ -638,6 +680,7 @@ impl Mission {
                 },
                 d_s,
                 moving: step.action == Action::Follow,
+                follow_s: if step.duration_s > 0.0 { step.duration_s } else { p.follow_default_s },
                 recent: 0,
                 rival: 0,
                 watched: 0,
@@ -649,6 +692,8 @@ impl Mission {
                 last_center: None,
                 unseen: 0,
                 last_seen: None,
+                velocity: None,
+                velocity_from: None,
                 follow_until: None,
                 explore: Explore::Idle,
             })),
@@ -816,6 +861,9 @@ impl Mission {
                 f.last_seen = Some(stamp);
                 f.goal = est.goal;
                 f.fused = est.fused_target.or(f.fused);
+                if let Some(t) = est.fused_target {
+                    f.track(stamp, t);
+                }
                 f.last_center = Some(b.center());
                 // A fixed, unnamed target is put to the class vote over a full
                 // window first; a named person (ReID decides) or a moving
@@ -856,10 +904,15 @@ impl Mission {
             let Some(goal) = goal else { return self.hold() };
             if moving {
                 let Some(f) = self.find_mut() else { return self.hold() };
-                let until = *f.follow_until.get_or_insert(stamp + p.follow_default_s);
+                let until = *f.follow_until.get_or_insert(stamp + f.follow_s);
                 if stamp >= until {
                     self.complete_step(&goal);
                     return self.hold();
+                }
+                let stale = f.last_seen.is_some_and(|t| stamp - t > FOLLOW_STALE_S);
+                if let (true, Some(t)) = (stale, f.predicted(stamp)) {
+                    let face = self.facing(&t, &goal);
+                    return self.call(Pending::FollowPlanned, Request::Drive { goal: face });
                 }
                 return self.call(Pending::FollowPlanned, Request::Drive { goal });
             }
@@ -962,6 +1015,18 @@ impl Mission {
     }
 
     /// Scan turn `turn` (0-based) of the look-around that began at `origin`.
+    /// A turn in place, where the robot stands, to face `target` (odom).
+    fn facing(&self, target: &Vector3<f64>, like: &Goal) -> Goal {
+        let pose = self.frame.pose;
+        let yaw = (target.y - pose.y).atan2(target.x - pose.x);
+        Goal {
+            pose: Pose2::new(pose.x, pose.y, yaw),
+            yaw_tolerance: FACING_TOLERANCE_RAD,
+            rotation_only: true,
+            ..*like
+        }
+    }
+
     fn turn_query(p: &ExecutorParams, origin: Pose2, turn: u32) -> MoveQuery {
         MoveQuery { anchor: origin, f_dist: 0.0, yaw: wrap(p.scan_turn_rad * f64::from(turn + 1)), d_s: 0.0 }
     }
@@ -969,14 +1034,20 @@ impl Mission {
     /// The target is not in view and nothing is to be confirmed: the next
     /// move of the bounded exploration.
     fn explore(&mut self, p: &ExecutorParams) -> Next {
-        let pose = self.frame.pose;
+        let (pose, stamp) = (self.frame.pose, self.frame.stamp);
         let index = self.index as u32;
         let Some(f) = self.find_mut() else { return self.hold() };
         let state = std::mem::replace(&mut f.explore, Explore::Idle);
         match state {
             Explore::Idle => {
-                let what = ExploreGoalFor::Scan { leg: 0, origin: pose, announce: true };
-                self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, pose, 0)))
+                // Look first where the target was last seen (a person who
+                // walked out of view went that way), then on round from there.
+                let origin = match f.predicted(stamp) {
+                    Some(t) => Pose2::new(pose.x, pose.y, wrap((t.y - pose.y).atan2(t.x - pose.x) - p.scan_turn_rad)),
+                    None => pose,
+                };
+                let what = ExploreGoalFor::Scan { leg: 0, origin, announce: true };
+                self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0)))
             }
             Explore::Turn { goal, .. } | Explore::Search { goal, .. } => {
                 self.call(Pending::ExploreDriven(state), Request::Drive { goal })
@@ -1130,3 +1201,13 @@ fn window_mask(window: u32) -> u64 {
 
 /// A sighting this close to an outvoted candidate's place is that object, m.
 const REJECTED_M: f64 = 0.75;
+/// A followed target unseen this long is not driven after: its goal is
+/// stale (a person who walked past the robot is behind it, not where the
+/// goal was set); the robot turns to where it was last seen instead, s.
+const FOLLOW_STALE_S: f64 = 1.0;
+/// How far a lost moving target is carried on along its velocity, s.
+const FOLLOW_PREDICT_S: f64 = 4.0;
+/// Shortest interval a walking velocity is measured over, s.
+const VELOCITY_BASELINE_S: f64 = 0.5;
+/// Facing a lost target this closely is facing it, rad (10°).
+const FACING_TOLERANCE_RAD: f64 = 0.17;

@@ -563,10 +563,9 @@ fn the_users_answer_replans_from_the_failed_step_and_the_mission_resumes() {
     assert!(events(&mut m).iter().any(|e| matches!(e, Event::Replanned { resume_index: 1, .. })));
 }
 
-#[test]
-fn a_follow_stays_with_its_target_until_its_time_is_up() {
-    let p = ExecutorParams { confirm_frames: 1, follow_default_s: 2.0, ..Default::default() };
-    let mut m = mission(vec![PlanStep { class_id: 0, target: "person".into(), ..step(Action::Follow) }]);
+/// Cycles of 0.5 s until the FOLLOW step ends; the step count.
+fn follow_cycles(p: &ExecutorParams, follow: PlanStep) -> i32 {
+    let mut m = mission(vec![follow]);
     let mut k = 0;
     let near = |r: &Request| -> Result<Reply, StageFailure> {
         Ok(match r {
@@ -581,16 +580,25 @@ fn a_follow_stays_with_its_target_until_its_time_is_up() {
         })
     };
     loop {
-        let (cmd, _) = cycle(&mut m, &p, at(f64::from(k) * 0.5, 0.0, 0.0, 0.0), near);
+        let (cmd, _) = cycle(&mut m, p, at(f64::from(k) * 0.5, 0.0, 0.0, 0.0), near);
         // Within d_s is where a follower stays: zero, but still active.
         assert_eq!((cmd.twist, cmd.active), (Twist::ZERO, true));
         if events(&mut m).iter().any(|e| matches!(e, Event::SubgoalReached { .. })) {
             break;
         }
         k += 1;
-        assert!(k < 20);
+        assert!(k < 40);
     }
-    assert_eq!(k, 4, "followed for 2 s of sensor time");
+    k
+}
+
+#[test]
+fn a_follow_stays_with_its_target_until_its_time_is_up() {
+    let p = ExecutorParams { confirm_frames: 1, follow_default_s: 2.0, ..Default::default() };
+    let follow = PlanStep { class_id: 0, target: "person".into(), ..step(Action::Follow) };
+    assert_eq!(follow_cycles(&p, follow.clone()), 4, "followed for the default 2 s of sensor time");
+    // The plan's own duration wins over the default ("follow him for 5 seconds").
+    assert_eq!(follow_cycles(&p, PlanStep { duration_s: 5.0, ..follow }), 10, "followed for the asked 5 s");
 }
 
 #[test]

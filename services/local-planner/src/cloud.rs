@@ -88,6 +88,8 @@ pub struct SeenRange {
     origin: Vector2<f64>,
     /// Range per bin, m (0: nothing measured); bin 0 starts at bearing −π.
     range: Vec<f32>,
+    /// Range of the nearest blocking point per bin, m (∞: none).
+    nearest_obstacle: Vec<f32>,
 }
 
 impl SeenRange {
@@ -95,7 +97,7 @@ impl SeenRange {
 
     /// Nothing seen yet, from a camera at `origin` (`base_link`, m).
     pub fn new(origin: Vector2<f64>) -> Self {
-        Self { origin, range: vec![0.0; Self::BINS] }
+        Self { origin, range: vec![0.0; Self::BINS], nearest_obstacle: vec![f32::INFINITY; Self::BINS] }
     }
 
     fn bin(&self, d: &Vector2<f64>) -> usize {
@@ -111,6 +113,37 @@ impl SeenRange {
         }
         let k = self.bin(&d);
         self.range[k] = self.range[k].max(d.norm() as f32);
+    }
+
+    /// Records a measured point at (x, y) in `base_link` that blocks (it
+    /// ends the free space along its bearing).
+    pub fn record_obstacle(&mut self, x: f64, y: f64) {
+        self.record(x, y);
+        let d = Vector2::new(x, y) - self.origin;
+        if self.nearest_obstacle.is_empty() {
+            return;
+        }
+        let k = self.bin(&d);
+        self.nearest_obstacle[k] = self.nearest_obstacle[k].min(d.norm() as f32);
+    }
+
+    /// Whether the frame saw free space at least `margin` m beyond `p`
+    /// (`base_link`) along its bearing and the bearing 1° to one side:
+    /// measured that far, and nothing blocking nearer. (The neighbour keeps
+    /// a point on an object's outline, whose own bin may hold only rays
+    /// that passed it by, from counting as seen through.)
+    pub fn free_beyond(&self, p: &Vector2<f64>, margin: f64) -> bool {
+        let d = p - self.origin;
+        if self.range.is_empty() || self.nearest_obstacle.is_empty() {
+            return false;
+        }
+        let k = self.bin(&d);
+        let need = d.norm() + margin;
+        let free = |o: usize| {
+            let j = (k + o) % Self::BINS;
+            f64::from(self.range[j].min(self.nearest_obstacle[j])) >= need
+        };
+        free(0) && (free(Self::BINS - 1) || free(1))
     }
 
     /// Whether the frame saw as far as `p` (`base_link`) along its bearing,
@@ -265,7 +298,11 @@ impl CloudBuilder {
                 let zm = z / 1000.0;
                 let p = t.apply(&Vector3::new((u as f64 - k.cx) / k.fx * zm, yn * zm, zm));
                 if p.z <= top {
-                    seen.record(p.x, p.y);
+                    if p.z > self.params.ground_z + self.params.obstacle_height {
+                        seen.record_obstacle(p.x, p.y);
+                    } else {
+                        seen.record(p.x, p.y);
+                    }
                 }
                 self.add_point(p.x, p.y, p.z);
             }
@@ -364,5 +401,27 @@ mod tests {
             assert!((cell.x - 2.0).abs() < 0.06, "cell at x {}", cell.x);
         }
         assert!(c.cells.iter().any(|c| c.blocking >= 2));
+    }
+
+    #[test]
+    fn free_space_ends_at_the_nearest_obstacle_of_a_bearing_and_a_neighbour() {
+        let mut seen = SeenRange::new(Vector2::zeros());
+        let at = |deg: f64, r: f64| Vector2::new(r * deg.to_radians().cos(), r * deg.to_radians().sin());
+        // The floor seen to 4 m along −5°…+5°; two posts 2 m away at 0.2°–0.8°
+        // and 2.2°–2.8°, one 1° bin apart.
+        for k in -50..=50 {
+            let p = at(f64::from(k) / 10.0, 4.0);
+            seen.record(p.x, p.y);
+        }
+        for deg in [0.2, 0.5, 0.8, 2.2, 2.5, 2.8] {
+            let p = at(deg, 2.0);
+            seen.record_obstacle(p.x, p.y);
+        }
+        assert!(seen.free_beyond(&at(-3.5, 3.0), 0.2), "floor seen to 4 m there");
+        assert!(!seen.free_beyond(&at(-3.5, 3.9), 0.2), "not beyond what was measured");
+        assert!(!seen.free_beyond(&at(0.5, 3.0), 0.2), "behind a post");
+        assert!(seen.free_beyond(&at(-0.5, 3.0), 0.2), "beside a post, its other neighbour free");
+        assert!(!seen.free_beyond(&at(1.5, 3.0), 0.2), "between the posts: both neighbours blocked");
+        assert!(!seen.free_beyond(&at(30.0, 1.0), 0.2), "never measured");
     }
 }

@@ -77,17 +77,26 @@
 //!   odometry jumps (re-anchored at a reached subgoal, where the robot
 //!   stands still) the memory moves with it: each cell keeps its place
 //!   relative to the robot. It is dropped when time runs backwards.
+//! - Moving obstacles: a cell that appears where a frame `moving_lookback_s`
+//!   (0.25 s) earlier saw free space beyond it (by a voxel plus three
+//!   standard deviations of the depth error at that range) is something
+//!   that moved there — a person walking — and so is every cell of the
+//!   frame within `moving_cluster_m` (0.3 m) of it. Out of view such cells
+//!   are remembered for `moving_memory_s` (1.5 s) only: a person who walked
+//!   past the robot's side must not stay behind as a wall it can neither
+//!   see nor turn through. A person who stands still stops counting as
+//!   moving after a look-back and is remembered like anything else.
 //! - No progress: while moving, if the distance to the goal has not dropped
 //!   by `progress_distance` (0.1 m) within `progress_window_s` (5 s of sensor
 //!   time), the step reports NO_PROGRESS once with a stop and the window
 //!   restarts, so the mission executor can recover instead of hanging.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
 use nalgebra::Vector2;
 use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
 
-use crate::cloud::{Cell, ObstacleCloud};
+use crate::cloud::{Cell, ObstacleCloud, SeenRange};
 use crate::planner::{Planner, Scratch, Selection};
 
 /// Path-following and watchdog settings.
@@ -130,6 +139,15 @@ pub struct FollowParams {
     /// Cells this close to the robot are remembered for `near_memory_s`, m.
     pub near_memory_m: f64,
     pub near_memory_s: f64,
+    /// A cell that appeared where an earlier frame (at least
+    /// `moving_lookback_s` before) saw free space is something moving — a
+    /// person walking — and so is every cell of this frame within
+    /// `moving_cluster_m` of it; out of view, moving cells are remembered
+    /// for `moving_memory_s` only, so a person who walked past does not
+    /// stay behind as a wall.
+    pub moving_lookback_s: f64,
+    pub moving_cluster_m: f64,
+    pub moving_memory_s: f64,
     /// Radius of the disc a turn in place sweeps (half-diagonal + margin), m.
     pub sweep_radius_m: f64,
     /// Half the robot's length and width, m (Husky A200: 0.99 m × 0.67 m).
@@ -169,6 +187,9 @@ impl Default for FollowParams {
             memory_seen_margin_m: 0.05,
             near_memory_m: 1.0,
             near_memory_s: 120.0,
+            moving_lookback_s: 0.25,
+            moving_cluster_m: 0.3,
+            moving_memory_s: 1.5,
             sweep_radius_m: 0.65,
             half_length_m: 0.495,
             half_width_m: 0.335,
@@ -227,6 +248,26 @@ struct Remembered {
     at: Vector2<f64>,
     cell: Cell,
     stamp: f64,
+    /// Seen moving (see `FollowParams::moving_lookback_s`).
+    moving: bool,
+}
+
+/// What one recent frame's depth saw, kept to tell moving cells from
+/// standing ones.
+#[derive(Clone, Debug, PartialEq)]
+struct RecentView {
+    stamp: f64,
+    /// `base_link` in `odom` at the frame.
+    pose: Pose2,
+    seen: SeenRange,
+}
+
+/// How far beyond a cell an earlier frame must have seen free space for the
+/// cell to count as new there: a voxel and three standard deviations of the
+/// D455's depth error, which grows with the square of range (≈ 2 % at 4 m,
+/// `docs/perception.md`), m.
+fn moved_in_margin(range_m: f64) -> f64 {
+    0.1 + 3.0 * 0.005 * range_m * range_m
 }
 
 /// The command and what led to it.
@@ -262,6 +303,8 @@ pub struct RobotState {
     /// One remembered cell per `odom` voxel, the newest (ordered, so that
     /// runs are reproducible).
     memory: BTreeMap<(i32, i32), Remembered>,
+    /// The last second of frames' depth coverage, oldest first.
+    recent: VecDeque<RecentView>,
     last_pose: Option<Pose2>,
     /// The goal (odom position) a sideways shift was chosen for, and the shift, m.
     goal_shift: Option<(Vector2<f64>, f64)>,
@@ -389,19 +432,24 @@ impl RobotState {
     /// memory becomes this frame's cells and the still-valid old ones.
     fn merge_memory(&mut self, cloud: &ObstacleCloud, input: &StepInput<'_>, p: &FollowParams) -> ObstacleCloud {
         let mut cells = cloud.cells.clone();
+        let moving = self.moving_cells(cloud, input, p);
         let now: Vec<((i32, i32), Remembered)> = cloud
             .cells
             .iter()
-            .map(|c| {
+            .zip(moving)
+            .map(|(c, moving)| {
                 let at = input.pose.transform(&Vector2::new(c.x as f64, c.y as f64));
-                (memory_key(&at), Remembered { at, cell: *c, stamp: input.stamp })
+                (memory_key(&at), Remembered { at, cell: *c, stamp: input.stamp, moving })
             })
             .collect();
         let current: BTreeSet<(i32, i32)> = now.iter().map(|(k, _)| *k).collect();
         self.memory.retain(|k, m| {
             let b = input.pose.inverse_transform(&m.at);
             let age = input.stamp - m.stamp;
-            if current.contains(k) || (age > p.memory_s && !(age <= p.near_memory_s && b.norm() <= p.near_memory_m)) {
+            if current.contains(k)
+                || (m.moving && age > p.moving_memory_s)
+                || (age > p.memory_s && !(age <= p.near_memory_s && b.norm() <= p.near_memory_m))
+            {
                 return false;
             }
             let measured = cloud.seen.as_ref().is_none_or(|s| s.reaches(&b, p.memory_seen_margin_m));
@@ -412,7 +460,87 @@ impl RobotState {
             true
         });
         self.memory.extend(now);
+        if let Some(seen) = &cloud.seen {
+            self.recent.push_back(RecentView { stamp: input.stamp, pose: input.pose, seen: seen.clone() });
+            while self.recent.front().is_some_and(|v| input.stamp - v.stamp > 4.0 * p.moving_lookback_s) {
+                self.recent.pop_front();
+            }
+        }
         ObstacleCloud { cells, raw_points: cloud.raw_points, seen: cloud.seen.clone() }
+    }
+
+    /// Which of this frame's cells belong to something moving: a cell where
+    /// the newest frame at least `moving_lookback_s` old saw free space
+    /// beyond it, this frame's cells near such a cell (the same body), and
+    /// cells near a cell remembered as moving within `moving_memory_s` (the
+    /// same body a moment ago: a person who pauses is still a person). A
+    /// cell remembered as standing (a wall seen before the person came
+    /// beside it) never becomes moving.
+    fn moving_cells(&self, cloud: &ObstacleCloud, input: &StepInput<'_>, p: &FollowParams) -> Vec<bool> {
+        let mut moving = vec![false; cloud.cells.len()];
+        let earlier = self.recent.iter().rev().find(|v| input.stamp - v.stamp >= p.moving_lookback_s);
+        let r = p.moving_cluster_m;
+        let recently_moving: Vec<Vector2<f64>> = self
+            .memory
+            .values()
+            .filter(|m| m.moving && input.stamp - m.stamp <= p.moving_memory_s)
+            .map(|m| m.at)
+            .collect();
+        let mut seeds = Vec::new();
+        let mut standing = vec![false; cloud.cells.len()];
+        for (k, c) in cloud.cells.iter().enumerate() {
+            if c.blocking == 0 {
+                continue;
+            }
+            let at = input.pose.transform(&Vector2::new(c.x as f64, c.y as f64));
+            if self.memory.get(&memory_key(&at)).is_some_and(|m| !m.moving && m.stamp < input.stamp) {
+                standing[k] = true;
+                continue;
+            }
+            let moved_in = earlier.is_some_and(|e| {
+                let then = e.pose.inverse_transform(&at);
+                e.seen.free_beyond(&then, moved_in_margin(then.norm()))
+            });
+            if moved_in || recently_moving.iter().any(|q| (q - at).norm() <= r) {
+                moving[k] = true;
+                seeds.push((c.x, c.y));
+            }
+        }
+        let r2 = (r * r) as f32;
+        for (k, c) in cloud.cells.iter().enumerate() {
+            if !moving[k]
+                && !standing[k]
+                && c.blocking > 0
+                && seeds.iter().any(|&(x, y)| (c.x - x) * (c.x - x) + (c.y - y) * (c.y - y) <= r2)
+            {
+                moving[k] = true;
+            }
+        }
+        moving
+    }
+
+    /// At debug level: why the robot is blocked — the remembered cells
+    /// within `radius` m (base_link), their age and whether they move.
+    fn log_blocked(&self, input: &StepInput<'_>, radius: f64, why: &str) {
+        if !tracing::enabled!(tracing::Level::DEBUG) {
+            return;
+        }
+        let cells: Vec<String> = self
+            .memory
+            .values()
+            .map(|m| (input.pose.inverse_transform(&m.at), m))
+            .filter(|(b, _)| b.norm() < radius)
+            .map(|(b, m)| {
+                format!(
+                    "({:.2}, {:.2}) {:.1} s{}",
+                    b.x,
+                    b.y,
+                    input.stamp - m.stamp,
+                    if m.moving { " moving" } else { "" }
+                )
+            })
+            .collect();
+        tracing::debug!(stamp = input.stamp, ?cells, "{why}");
     }
 
     /// Obstacle cells currently remembered (this frame's included).
@@ -432,8 +560,10 @@ impl RobotState {
             .is_some_and(|q| (q.position() - input.pose.position()).norm() > 0.5 + 2.0 * p.max_speed * dt);
         if time_went_back {
             self.memory.clear();
+            self.recent.clear();
             self.last_path_odom.clear();
         } else if let (true, Some(last)) = (jumped, self.last_pose) {
+            self.recent.clear();
             // Re-anchored odometry: the robot has not moved, its frame has.
             let old = std::mem::take(&mut self.memory);
             for (_, mut m) in old {
@@ -503,7 +633,10 @@ impl RobotState {
         self.aligned |= !self.rotating;
         if self.rotating {
             match self.sweep(p) {
-                Some(Sweep::Blocked) => return stop(self, out, StepStatus::Blocked),
+                Some(Sweep::Blocked) => {
+                    self.log_blocked(&input, p.sweep_radius_m, "a turn in place is blocked");
+                    return stop(self, out, StepStatus::Blocked);
+                }
                 Some(Sweep::Escape(v)) => {
                     out.linear = v;
                     return stop(self, out, StepStatus::Rotating);
@@ -526,6 +659,7 @@ impl RobotState {
         out.free_paths = plan.free_paths;
         out.path_scale = plan.scale;
         let Some(sel) = plan.selection else {
+            self.log_blocked(&input, 1.2, "no free path");
             self.last_selection = None;
             self.last_path_odom.clear();
             return stop(self, out, StepStatus::Blocked);
@@ -660,6 +794,25 @@ mod tests {
         let mut state = RobotState::default();
         remembered_after(&mut state, &seen_wall, 0.0);
         assert_eq!(remembered_after(&mut state, &ObstacleCloud::default(), 0.2), 0);
+    }
+
+    #[test]
+    fn a_cell_that_appeared_in_free_space_is_moving_and_soon_forgotten_out_of_view() {
+        // Beside the robot, outside the ±43° view: only the memory holds it.
+        let person = Cell { x: 0.2, y: 1.0, blocking: 3, low: false, no_go: false };
+        let sofa = Cell { x: -0.2, y: 1.0, blocking: 3, low: false, no_go: false };
+        let mut state = RobotState::default();
+        // The sofa was there from the first frame; the space where the person
+        // now stands was seen free (depth reached 4 m all round).
+        assert_eq!(remembered_after(&mut state, &ObstacleCloud { cells: vec![sofa], ..frame(4.0, None) }, 0.0), 1);
+        let both = ObstacleCloud { cells: vec![sofa, person], ..frame(4.0, None) };
+        assert_eq!(remembered_after(&mut state, &both, 0.3), 2);
+        let moving: Vec<bool> = state.memory.values().map(|m| m.moving).collect();
+        assert_eq!(moving.iter().filter(|m| **m).count(), 1, "the person moves, the sofa stands: {moving:?}");
+        // Out of view, a moving cell is remembered for 1.5 s, a standing one for 20 s.
+        assert_eq!(remembered_after(&mut state, &frame(4.0, None), 1.5), 2);
+        assert_eq!(remembered_after(&mut state, &frame(4.0, None), 2.0), 1);
+        assert_eq!(remembered_after(&mut state, &frame(4.0, None), 15.0), 1);
     }
 
     fn with_cells(cells: &[(f32, f32)]) -> RobotState {

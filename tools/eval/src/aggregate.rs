@@ -25,8 +25,15 @@ pub struct Summary {
     /// Success with |stopping error| ≤ 0.25 m, %.
     pub success_025_pct: f64,
     /// Share of trials with at least one soft / hard collision, % (primary).
+    /// Hard: contact the robot made (what fails a trial).
     pub soft_trials_pct: f64,
     pub hard_trials_pct: f64,
+    /// Share of trials in which a person walked into the stopped robot, %.
+    #[serde(default)]
+    pub walked_into_trials_pct: f64,
+    /// Share of trials with any contact with a pedestrian, whoever made it, %.
+    #[serde(default)]
+    pub pedestrian_trials_pct: f64,
     /// Mean share of mission time inside a no-go region / touching something, % (secondary).
     pub soft_time_pct: f64,
     pub hard_time_pct: f64,
@@ -82,7 +89,7 @@ fn summarise_group(scenario: &str, mode: Mode, records: &[&TrialRecord]) -> Summ
     let mut failures = BTreeMap::new();
     for r in records.iter().filter(|r| !r.success()) {
         let key = match r.outcome {
-            Outcome::Succeeded if r.completed() && r.contact.hard_events > 0 => "hard_contact",
+            Outcome::Succeeded if r.completed() && r.contact.hard_by_robot > 0 => "hard_contact",
             Outcome::Succeeded => "outside_radius",
             other => other.as_str(),
         };
@@ -100,7 +107,9 @@ fn summarise_group(scenario: &str, mode: Mode, records: &[&TrialRecord]) -> Summ
         slack_m,
         success_025_pct: pct(count(&|r| r.success_within(TIGHT_SLACK_M)), trials),
         soft_trials_pct: pct(count(&|r| r.contact.soft_events > 0), trials),
-        hard_trials_pct: pct(count(&|r| r.contact.hard_events > 0), trials),
+        hard_trials_pct: pct(count(&|r| r.contact.hard_by_robot > 0), trials),
+        walked_into_trials_pct: pct(count(&|r| r.contact.hard_events > r.contact.hard_by_robot), trials),
+        pedestrian_trials_pct: pct(count(&|r| r.contact.pedestrian_events > 0), trials),
         soft_time_pct: 100.0 * mean(records.iter().map(|r| r.soft_time_share())),
         hard_time_pct: 100.0 * mean(records.iter().map(|r| r.hard_time_share())),
         path_m: mean(records.iter().map(|r| r.path_length_m)),
@@ -146,6 +155,7 @@ mod tests {
         rs[0].contact.soft_events = 1;
         rs[0].contact.soft_s = 4.0; // 10 % of 40 s
         rs[2].contact.hard_events = 2;
+        rs[2].contact.hard_by_robot = 2;
         rs[2].contact.hard_s = 2.0; // 5 %
         rs[3].path_length_m = 16.0;
         let mut other = record(0, Outcome::Succeeded, (10.0, 0.0));
@@ -187,11 +197,29 @@ mod tests {
     fn a_completed_trial_with_hard_contact_fails_as_such() {
         let mut r = record(0, Outcome::Succeeded, (10.0, 0.5));
         r.contact.hard_events = 1;
+        r.contact.hard_by_robot = 1;
         let s = summarise(&[r]);
         assert_eq!(s[0].successes, 0);
         assert_eq!(s[0].failures.get("hard_contact"), Some(&1));
         assert_eq!(s[0].hard_trials_pct, 100.0);
         assert_eq!(s[0].completed, 1, "its stopping error still counts");
+    }
+
+    #[test]
+    fn a_person_walking_into_the_stopped_robot_is_counted_apart() {
+        let mut walked_into = record(0, Outcome::Succeeded, (10.0, 0.5));
+        walked_into.contact.hard_events = 1;
+        walked_into.contact.pedestrian_events = 1;
+        let mut ran_into = record(1, Outcome::Succeeded, (10.0, 0.5));
+        ran_into.contact.hard_events = 2;
+        ran_into.contact.hard_by_robot = 1;
+        ran_into.contact.pedestrian_events = 1;
+        ran_into.contact.pedestrian_by_robot = 1;
+        let s = summarise(&[walked_into, ran_into]);
+        assert_eq!(s[0].successes, 1, "only the trial whose robot made contact fails");
+        assert_eq!(s[0].hard_trials_pct, 50.0);
+        assert_eq!(s[0].walked_into_trials_pct, 100.0, "both were walked into once");
+        assert_eq!(s[0].pedestrian_trials_pct, 100.0);
     }
 
     #[test]

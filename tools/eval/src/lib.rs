@@ -128,7 +128,8 @@ pub struct EvalReport {
     pub markdown: String,
     pub summary_csv: String,
     pub trials_csv: String,
-    /// Files written: report.md, summary.csv, trials.csv, plots/*.svg.
+    /// Files written: report.md, summary.csv, trials.csv, plots/*.svg and
+    /// the plotted trials' tracks, plots/*.csv.
     pub out_dir: PathBuf,
     pub plots: Vec<PathBuf>,
     pub wall_s: f64,
@@ -238,6 +239,12 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
             let path = args.out.join("plots").join(format!("{}-{}-{}.svg", r.scenario, r.mode, r.trial));
             std::fs::write(&path, plot::render_svg(scene))
                 .with_context(|| format!("cannot write {}", path.display()))?;
+            plots.push(path);
+        }
+        if let Some(track) = &result.track_csv {
+            let r = &result.record;
+            let path = args.out.join("plots").join(format!("{}-{}-{}.csv", r.scenario, r.mode, r.trial));
+            std::fs::write(&path, track).with_context(|| format!("cannot write {}", path.display()))?;
             plots.push(path);
         }
         if result.record.outcome == metrics::Outcome::Error {

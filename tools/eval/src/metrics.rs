@@ -164,6 +164,15 @@ pub struct ContactAccount {
     /// Sensor seconds spent in contact.
     pub hard_s: f64,
     pub soft_s: f64,
+    /// Hard events the robot's own motion made; the others are people
+    /// walking into it (`docs/simulation.md`, "Contact and its cause").
+    #[serde(default)]
+    pub hard_by_robot: u32,
+    /// Hard events with a pedestrian, and those of them the robot made.
+    #[serde(default)]
+    pub pedestrian_events: u32,
+    #[serde(default)]
+    pub pedestrian_by_robot: u32,
 }
 
 impl ContactAccount {
@@ -254,14 +263,16 @@ impl TrialRecord {
         self.outcome == Outcome::Succeeded && self.steps_total > 0 && self.steps_completed == self.steps_total
     }
 
-    /// Completed, no hard contact, and the true final position within the success radius.
+    /// Completed, no hard contact the robot made, and the true final
+    /// position within the success radius. (A person walking into the
+    /// stopped robot is counted, but is not the robot's failure.)
     pub fn success(&self) -> bool {
-        self.completed() && self.contact.hard_events == 0 && self.final_error_m() <= self.success_radius_m
+        self.completed() && self.contact.hard_by_robot == 0 && self.final_error_m() <= self.success_radius_m
     }
 
-    /// Completed, no hard contact, and |stopping error| ≤ `slack`.
+    /// Completed, no hard contact the robot made, and |stopping error| ≤ `slack`.
     pub fn success_within(&self, slack: f64) -> bool {
-        self.completed() && self.contact.hard_events == 0 && self.stop_error_m().abs() <= slack
+        self.completed() && self.contact.hard_by_robot == 0 && self.stop_error_m().abs() <= slack
     }
 
     /// Share of the mission's sensor time in hard contact, 0–1.
@@ -343,8 +354,11 @@ pub(crate) mod tests {
         assert!(!r.success_within(0.25), "0.4 m farther than the asked 0.5 m");
         assert!(record(0, Outcome::Succeeded, (10.0, 0.7)).success_within(0.25));
         r.contact.hard_events = 1;
-        assert!(!r.success() && !r.success_within(1.0), "a trial with hard contact is not a success");
+        assert!(r.success(), "a person walked into the stopped robot: counted, not the robot's failure");
+        r.contact.hard_by_robot = 1;
+        assert!(!r.success() && !r.success_within(1.0), "a trial with hard contact the robot made is not a success");
         r.contact.hard_events = 0;
+        r.contact.hard_by_robot = 0;
         r.contact.soft_events = 3;
         assert!(r.success(), "soft events do not fail a trial");
     }

@@ -206,15 +206,17 @@ fn stop_cell(completed: u32, mean: f64, std: f64) -> String {
 /// Every (scenario, mode) with every figure, ours only.
 pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String {
     let mut out = String::new();
-    out.push_str("| Scenario | Mode | Trials | Success % | Slack (m) | Success % at 0.25 m | Soft % trials | Hard % trials | Soft % time | Hard % time | Path (m) | Completed | Stopping error (m) | Bias (m) | Final error (m) | Time (s) | Frames | Failures |\n");
-    out.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n");
+    out.push_str("| Scenario | Mode | Trials | Success % | Slack (m) | Success % at 0.25 m | Soft % trials | Hard % trials | Walked into % trials | Person contact % trials | Soft % time | Hard % time | Path (m) | Completed | Stopping error (m) | Bias (m) | Final error (m) | Time (s) | Frames | Failures |\n");
+    out.push_str(
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|\n",
+    );
     for sc in scenarios {
         for mode in Mode::ALL {
             let Some(s) = find(summaries, &sc.name, mode) else { continue };
             let failures: Vec<String> = s.failures.iter().map(|(k, v)| format!("{k} {v}")).collect();
             let _ = writeln!(
                 out,
-                "| {} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {} | {:+.2} | {:.2} | {:.1} | {} | {} |",
+                "| {} | {} | {} | {:.1} | {} | {:.1} | {:.0} | {:.0} | {:.0} | {:.0} | {:.1} | {:.1} | {:.1} | {} | {} | {:+.2} | {:.2} | {:.1} | {} | {} |",
                 sc.title,
                 mode,
                 s.trials,
@@ -223,6 +225,8 @@ pub fn full_markdown(scenarios: &[ScenarioRef], summaries: &[Summary]) -> String
                 s.success_025_pct,
                 s.soft_trials_pct,
                 s.hard_trials_pct,
+                s.walked_into_trials_pct,
+                s.pedestrian_trials_pct,
                 s.soft_time_pct,
                 s.hard_time_pct,
                 s.path_m,
@@ -276,8 +280,9 @@ within the success radius r of the true destination G_d; r is the asked stopping
 Success at 0.25 m: the same with |stopping error| ≤ 0.25 m. Stopping error: ‖G_d − R_d‖ − d with no slack, \
 mean |error| ± population standard deviation over the trials that completed every step (bias: the signed mean, \
 positive = stopped farther than asked). Collisions: share of trials with at least one soft event (entered a no-go \
-region) / hard event (touched structure, an object or a person), beside the paper's soft / hard collision %; \
-the share of mission time in contact is secondary. Time: sensor seconds.\n",
+region) / hard event the robot made (it moved into structure, an object or a person), beside the paper's soft / \
+hard collision %; a person walking into the stopped robot is counted apart and does not fail a trial. The share \
+of mission time in contact is secondary. Time: sensor seconds.\n",
     );
     out
 }
@@ -300,6 +305,8 @@ pub fn summary_csv(scenarios: &[ScenarioRef], summaries: &[Summary]) -> anyhow::
         "success_025_pct",
         "soft_trials_pct",
         "hard_trials_pct",
+        "walked_into_trials_pct",
+        "pedestrian_trials_pct",
         "soft_time_pct",
         "hard_time_pct",
         "path_m",
@@ -335,6 +342,8 @@ pub fn summary_csv(scenarios: &[ScenarioRef], summaries: &[Summary]) -> anyhow::
                 format!("{:.2}", s.success_025_pct),
                 format!("{:.2}", s.soft_trials_pct),
                 format!("{:.2}", s.hard_trials_pct),
+                format!("{:.2}", s.walked_into_trials_pct),
+                format!("{:.2}", s.pedestrian_trials_pct),
                 format!("{:.3}", s.soft_time_pct),
                 format!("{:.3}", s.hard_time_pct),
                 format!("{:.3}", s.path_m),
@@ -390,6 +399,9 @@ pub fn trials_csv(records: &[TrialRecord]) -> anyhow::Result<String> {
         "hard_events",
         "soft_s",
         "hard_s",
+        "hard_by_robot",
+        "pedestrian_events",
+        "pedestrian_by_robot",
         "reason",
     ])?;
     for r in sorted {
@@ -421,6 +433,9 @@ pub fn trials_csv(records: &[TrialRecord]) -> anyhow::Result<String> {
             r.contact.hard_events.to_string(),
             format!("{:.3}", r.contact.soft_s),
             format!("{:.3}", r.contact.hard_s),
+            r.contact.hard_by_robot.to_string(),
+            r.contact.pedestrian_events.to_string(),
+            r.contact.pedestrian_by_robot.to_string(),
             r.reason.clone(),
         ])?;
     }

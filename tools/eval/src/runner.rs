@@ -68,7 +68,9 @@ pub fn with_start(text: &str, start: Pose) -> anyhow::Result<String> {
 }
 
 /// Whether the footprint at `pose` touches structure (hard) or lies in a
-/// no-go marking (soft), at simulation time `t` (pedestrians move).
+/// no-go marking (soft), pedestrians on their scripted routes at time `t`
+/// (exact at t = 0, before anyone has reacted to the robot: used to check
+/// start poses; during a trial the simulator's own contact state counts).
 pub fn contact_at(world: &World, pose: Pose, t: f64) -> (bool, bool) {
     let params = vlnav_sim::HuskyParams::default();
     let rect = OrientedRect::new(pose, params.length, params.width);
@@ -95,10 +97,12 @@ struct Watched {
     replans: u32,
 }
 
-/// One finished trial: its record and, when asked for, its plot.
+/// One finished trial: its record and, when asked for, its plot and its
+/// frame-by-frame track (CSV).
 pub struct TrialResult {
     pub record: TrialRecord,
     pub plot: Option<PlotScene>,
+    pub track_csv: Option<String>,
     pub wall_s: f64,
 }
 
@@ -169,7 +173,7 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
         Ok(v) => v,
         Err(e) => {
             record.reason = format!("{e:#}");
-            return TrialResult { record, plot: None, wall_s: started.elapsed().as_secs_f64() };
+            return TrialResult { record, plot: None, track_csv: None, wall_s: started.elapsed().as_secs_f64() };
         }
     };
     record.outcome = watched.outcome.unwrap_or(Outcome::Error);
@@ -190,16 +194,30 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
         record.odom_path_length_m = odom_path_length(&steps);
     }
 
-    let track = truth_track(&loaded.world, &steps);
+    let track = truth_track(&steps);
     if let (Some(first), Some(last)) = (steps.first(), steps.last()) {
         let (t0, t1) = (first.truth.as_ref(), last.truth.as_ref());
         if let (Some(t0), Some(t1)) = (t0, t1) {
             record.path_length_m = t1.path_length_m - t0.path_length_m;
             record.final_position = Point2::new(t1.pose.x, t1.pose.y);
+            if let Some(name) = &instruction.follow {
+                // G_d of a FOLLOW: where the followed person is at the end.
+                let k = loaded
+                    .world
+                    .pedestrians
+                    .iter()
+                    .position(|p| loaded.world.entity(p.entity).is_some_and(|e| &e.name == name));
+                if let Some(at) = k.and_then(|k| t1.pedestrians.get(k)) {
+                    record.destination = Point2::new(at.x, at.y);
+                }
+            }
             record.contact = ContactAccount::from_track(&track);
             // Events counted by the simulator at its physics substep, finer than frames.
             record.contact.hard_events = t1.hard_collisions - t0.hard_collisions;
             record.contact.soft_events = t1.soft_collisions - t0.soft_collisions;
+            record.contact.hard_by_robot = t1.hard_collisions_by_robot - t0.hard_collisions_by_robot;
+            record.contact.pedestrian_events = t1.pedestrian_contacts - t0.pedestrian_contacts;
+            record.contact.pedestrian_by_robot = t1.pedestrian_contacts_by_robot - t0.pedestrian_contacts_by_robot;
         }
         record.duration_s = last.stamp - first.stamp;
         record.frames = steps.len() as u32;
@@ -215,23 +233,65 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
             &watched,
         )
     });
-    TrialResult { record, plot, wall_s: started.elapsed().as_secs_f64() }
+    let track_csv = with_plot.then(|| track_csv(&loaded.world, &steps));
+    TrialResult { record, plot, track_csv, wall_s: started.elapsed().as_secs_f64() }
 }
 
-fn truth_track(world: &World, steps: &[StepRecord]) -> Vec<TruthSample> {
+/// The trial frame by frame: sensor time, true pose, odometry, the command
+/// received and the one applied, contact, and where each pedestrian was.
+fn track_csv(world: &World, steps: &[StepRecord]) -> String {
+    use std::fmt::Write as _;
+    let mut out = String::from(
+        "stamp_s,x_m,y_m,theta_rad,odom_x_m,odom_y_m,odom_theta_rad,cmd_v,cmd_w,applied_v,applied_w,hard_contact,no_go",
+    );
+    for p in &world.pedestrians {
+        let name = world.entity(p.entity).map_or("pedestrian", |e| e.name.as_str()).replace([',', ' '], "_");
+        let _ = write!(out, ",{name}_x_m,{name}_y_m");
+    }
+    out.push('\n');
+    for s in steps {
+        let Some(t) = &s.truth else { continue };
+        let (cv, cw) = s.command.map_or((0.0, 0.0), |(_, c)| (c.linear, c.angular));
+        let _ = write!(
+            out,
+            "{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{:.3},{:.3},{},{}",
+            s.stamp,
+            t.pose.x,
+            t.pose.y,
+            t.pose.theta,
+            s.odom.x,
+            s.odom.y,
+            s.odom.theta,
+            cv,
+            cw,
+            s.applied.linear,
+            s.applied.angular,
+            u8::from(t.in_hard_contact),
+            u8::from(t.in_no_go)
+        );
+        for p in &t.pedestrians {
+            let _ = write!(out, ",{:.3},{:.3}", p.x, p.y);
+        }
+        out.push('\n');
+    }
+    out
+}
+
+/// The trial's ground truth frame by frame, contact as the simulator saw it
+/// (pedestrians move as they react to the robot, so only the simulator
+/// knows where they were).
+fn truth_track(steps: &[StepRecord]) -> Vec<TruthSample> {
     steps
         .iter()
         .filter_map(|s| {
             let t = s.truth.as_ref()?;
-            let pose = t.pose;
-            let (hard, soft) = contact_at(world, pose, t.stamp);
             Some(TruthSample {
                 stamp: s.stamp,
-                pose,
+                pose: t.pose,
                 odom: s.odom,
                 odom_origin: t.odom_origin,
-                hard_contact: hard,
-                soft_contact: soft,
+                hard_contact: t.in_hard_contact,
+                soft_contact: t.in_no_go,
             })
         })
         .collect()

@@ -142,6 +142,11 @@ pub struct Instruction {
     /// a point destination.
     #[serde(default)]
     pub stop_m: Option<f64>,
+    /// A walking pedestrian (its `name` in the world) the instruction
+    /// follows: G_d is where that person is when the mission ends, not a
+    /// fixed point (`destination` is then only the plots' marker).
+    #[serde(default)]
+    pub follow: Option<String>,
 }
 
 #[derive(Clone, Debug, Deserialize, PartialEq)]
@@ -432,6 +437,12 @@ impl Suite {
                 }
                 if ins.route.iter().any(|l| !(l.size.is_finite() && l.size >= 0.0)) {
                     return Err(invalid(at("route.size"), "must be a finite radius ≥ 0"));
+                }
+                if ins.follow.is_some() && ins.stop_m.is_none() {
+                    return Err(invalid(
+                        at("stop_m"),
+                        "a followed person moves: give the distance to keep from their centre (d_s + body radius)",
+                    ));
                 }
                 if ins.destination.is_none() && ins.route.is_empty() {
                     return Err(invalid(at("destination"), "give a destination or a route ending at it"));

@@ -82,6 +82,11 @@ fn every_instruction_plans_and_names_landmarks_of_its_world() {
                 assert!(near, "{who}: the destination is not by a {} of the world", last.target);
             }
             assert!(ins.radius >= 0.5, "{who}: radius below the executor's own arrival tolerance");
+            if let Some(name) = &ins.follow {
+                let walks = w.pedestrians.iter().any(|p| w.entity(p.entity).is_some_and(|e| &e.name == name));
+                assert!(walks, "{who}: follows `{name}`, who is not a pedestrian of the world");
+                assert!(plan.steps.iter().any(|st| st.action == Action::Follow), "{who}: follows without a FOLLOW");
+            }
         }
     }
 }
