@@ -113,6 +113,8 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 robot: args.robot_id.clone(),
                 gateway: stack.gateway_uri(),
                 dry_run: false,
+                // Nobody answers a demo's questions.
+                stop_on_question: true,
             };
             wait_for_robot(&stack.gateway_uri(), &args.robot_id).await?;
             let mission = run_mission(&mission_args, &mut std::io::stdout()).await;

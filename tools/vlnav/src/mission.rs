@@ -4,9 +4,9 @@
 use std::io::Write;
 
 use vlnav_proto::v1::{
-    ActionKind, ActionStep, Audio, AudioFormat, GetMissionRequest, Mission, MissionEvent, MissionState,
-    SubmitMissionRequest, WatchMissionRequest, mission_event::Kind, mission_service_client::MissionServiceClient,
-    submit_mission_request, submit_mission_response,
+    ActionKind, ActionStep, Audio, AudioFormat, CancelMissionRequest, GetMissionRequest, Mission, MissionEvent,
+    MissionState, SubmitMissionRequest, WatchMissionRequest, mission_event::Kind,
+    mission_service_client::MissionServiceClient, submit_mission_request, submit_mission_response,
 };
 
 #[derive(clap::Args, Clone, Debug)]
@@ -23,6 +23,10 @@ pub struct MissionArgs {
     /// Plan and validate only; nothing moves.
     #[arg(long)]
     pub dry_run: bool,
+    /// When the robot asks a question, cancel the mission and stop instead
+    /// of waiting for an answer (`AnswerClarification`) from another client.
+    #[arg(long)]
+    pub stop_on_question: bool,
 }
 
 /// A one-line description of a plan step.
@@ -149,6 +153,10 @@ pub async fn run_mission(args: &MissionArgs, out: &mut (impl Write + Send)) -> a
     while let Some(e) = events.message().await? {
         writeln!(out, "{}", describe_event(&e))?;
         out.flush()?;
+        if args.stop_on_question && matches!(e.kind, Some(Kind::ClarificationNeeded(_))) {
+            writeln!(out, "(nobody here to answer: cancelling the mission)")?;
+            client.cancel_mission(CancelMissionRequest { mission_id: resp.mission_id.clone() }).await?;
+        }
     }
     let mission = client.get_mission(GetMissionRequest { mission_id: resp.mission_id }).await?.into_inner();
     writeln!(out, "{}", summarise(&mission))?;
