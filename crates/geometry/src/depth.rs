@@ -1,4 +1,16 @@
 //! Depth images on the wire: little-endian u16 millimetres, row-major, 0 = no return.
+//! And the RealSense D455's depth error, which the simulator draws and the
+//! local planner allows for (docs/perception.md).
+
+/// The D455's depth noise σ = k·z²: its ≤ 2 % RMS error at 4 m (0.08 m;
+/// Intel RealSense D400 series datasheet, "D455 depth module") gives
+/// k = 0.08 / 4² m⁻¹.
+pub const D455_NOISE_K: f64 = 0.005;
+
+/// The D455's depth noise standard deviation at `range_m`, metres.
+pub fn d455_sigma_m(range_m: f64) -> f64 {
+    D455_NOISE_K * range_m * range_m
+}
 
 /// A borrowed depth image: little-endian u16 millimetres, row-major, 0 = no return.
 #[derive(Clone, Copy, Debug)]

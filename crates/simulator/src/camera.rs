@@ -54,8 +54,7 @@ pub const PAPER_HEIGHT: u32 = 480;
 pub const PAPER_F: f64 = 343.159;
 pub const PAPER_CX: f64 = 320.5;
 pub const PAPER_CY: f64 = 240.5;
-/// σ = k·z²: the D455's ≤ 2 % RMS at 4 m (0.08 m) gives k = 0.08 / 4².
-pub const D455_NOISE_K: f64 = 0.005;
+pub use vlnav_geometry::depth::D455_NOISE_K;
 
 impl Default for CameraConfig {
     fn default() -> Self {

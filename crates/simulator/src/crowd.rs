@@ -87,8 +87,8 @@ impl Crowd {
     /// Advances everyone by `h` seconds, the robot being at `robot` and
     /// moving at `robot_velocity` (world frame, m/s).
     pub fn step(&mut self, world: &World, robot: &OrientedRect, robot_velocity: Vec2, h: f64) {
-        let before: Vec<Vec2> = self.walkers.iter().map(|w| w.position).collect();
-        let before_v: Vec<Vec2> = self.walkers.iter().map(|w| w.velocity).collect();
+        // Everyone reacts to where the others were at the start of the step.
+        let before = self.walkers.clone();
         let ahead = OrientedRect {
             pose: vlnav_geometry::Pose2::new(
                 robot.pose.x + robot_velocity.x * ANTICIPATION_S,
@@ -109,16 +109,17 @@ impl Crowd {
                 if j == i {
                     continue;
                 }
-                if (w.position - before[j]).norm() > INFLUENCE_M {
+                let (other_at, other_v) = (before[j].position, before[j].velocity);
+                if (w.position - other_at).norm() > INFLUENCE_M {
                     continue;
                 }
                 let mut push = Vec2::default();
                 for t in [0.0, ANTICIPATION_S] {
-                    let d = (w.position + w.velocity.scale(t)) - (before[j] + before_v[j].scale(t));
+                    let d = (w.position + w.velocity.scale(t)) - (other_at + other_v.scale(t));
                     let centre_gap = d.norm();
                     let gap = centre_gap - spec.radius - other.radius;
                     let n = if centre_gap > 1e-9 { d.scale(1.0 / centre_gap) } else { perpendicular_right(e) };
-                    let f = repulsion(e, n, gap, PERSON_A, PERSON_B, true, before[j] - w.position);
+                    let f = repulsion(e, n, gap, PERSON_A, PERSON_B, true, other_at - w.position);
                     if f.norm() > push.norm() {
                         push = f;
                     }

@@ -150,13 +150,15 @@ impl Simulator {
         self.state.wheel_twist = m.wheel_twist;
         self.state.odom = m.odom;
         let candidate = OrientedRect::new(m.truth, self.params.length, self.params.width);
-        let blocked = self.solids_overlapping(&candidate);
-        // What the robot's own motion reaches, with everything else where it was.
+        // What the robot's own motion reaches (within the contact margin),
+        // with everything else where it was; of that, what the body itself
+        // would overlap stops it.
         let robot_made = self.solids_overlapping(&candidate.inflate(CONTACT_MARGIN_M));
+        let blocked = self.solids_overlapping_among(&candidate, &robot_made);
+        let moved = blocked.is_empty();
         let previous = self.state.truth;
-        let mut touching = if blocked.is_empty() {
-            let moved = m.truth.distance(&self.state.truth);
-            self.path_length += moved;
+        let mut touching = if moved {
+            self.path_length += m.truth.distance(&self.state.truth);
             self.state.truth = m.truth;
             self.state.truth_twist = m.truth_twist;
             Vec::new()
@@ -166,13 +168,20 @@ impl Simulator {
             self.state.truth_twist = Twist::ZERO;
             blocked
         };
-        if !self.world.pedestrians.is_empty() {
+        let people = !self.world.pedestrians.is_empty();
+        if people {
             let body = OrientedRect::new(self.state.truth, self.params.length, self.params.width);
             let velocity = Vec2::new(self.state.truth.x - previous.x, self.state.truth.y - previous.y).scale(1.0 / h);
             self.crowd.step(&self.world, &body, velocity, h);
         }
-        let here = OrientedRect::new(self.state.truth, self.params.length, self.params.width).inflate(CONTACT_MARGIN_M);
-        for id in self.solids_overlapping(&here) {
+        let here = if moved && !people {
+            // Nothing else moved: the robot now touches what its move reached.
+            robot_made.clone()
+        } else {
+            let rect = OrientedRect::new(self.state.truth, self.params.length, self.params.width);
+            self.solids_overlapping(&rect.inflate(CONTACT_MARGIN_M))
+        };
+        for id in here {
             if !touching.contains(&id) {
                 touching.push(id);
             }
@@ -193,15 +202,33 @@ impl Simulator {
         self.inside = inside;
     }
 
+    /// Entities (solids and people) whose outline `rect` overlaps.
     fn solids_overlapping(&self, rect: &OrientedRect) -> Vec<u16> {
-        let mut ids: Vec<u16> =
-            self.world.solids.iter().filter(|s| rect.overlaps(&s.shape)).map(|s| s.entity).collect();
+        self.overlapping(rect, |_| true)
+    }
+
+    /// Those of `ids` whose outline `rect` overlaps.
+    fn solids_overlapping_among(&self, rect: &OrientedRect, ids: &[u16]) -> Vec<u16> {
+        if ids.is_empty() {
+            return Vec::new();
+        }
+        self.overlapping(rect, |id| ids.contains(&id))
+    }
+
+    fn overlapping(&self, rect: &OrientedRect, consider: impl Fn(u16) -> bool) -> Vec<u16> {
+        let mut ids: Vec<u16> = self
+            .world
+            .solids
+            .iter()
+            .filter(|s| consider(s.entity) && rect.overlaps(&s.shape))
+            .map(|s| s.entity)
+            .collect();
         ids.extend(
             self.world
                 .pedestrians
                 .iter()
                 .zip(self.crowd.shapes(&self.world))
-                .filter(|(_, shape)| rect.overlaps(shape))
+                .filter(|(p, shape)| consider(p.entity) && rect.overlaps(shape))
                 .map(|(p, _)| p.entity),
         );
         ids.sort_unstable();

@@ -147,6 +147,11 @@ impl World {
         (instance_id as usize).checked_sub(1).and_then(|i| self.entities.get(i))
     }
 
+    /// The index (in `pedestrians`) of the pedestrian called `name`.
+    pub fn pedestrian_index(&self, name: &str) -> Option<usize> {
+        self.pedestrians.iter().position(|p| self.entity(p.entity).is_some_and(|e| e.name == name))
+    }
+
     /// Entities of a COCO class (and identity, when given), with their
     /// position at time `t` (centre of the footprint's bounds).
     pub fn find_objects(&self, class_id: i32, identity: Option<&str>, t: f64) -> Vec<(&Entity, Vec2)> {

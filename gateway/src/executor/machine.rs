@@ -1014,19 +1014,18 @@ impl Mission {
         self.step = None;
     }
 
-    /// Scan turn `turn` (0-based) of the look-around that began at `origin`.
     /// A turn in place, where the robot stands, to face `target` (odom).
     fn facing(&self, target: &Vector3<f64>, like: &Goal) -> Goal {
         let pose = self.frame.pose;
-        let yaw = (target.y - pose.y).atan2(target.x - pose.x);
         Goal {
-            pose: Pose2::new(pose.x, pose.y, yaw),
+            pose: Pose2::new(pose.x, pose.y, bearing(pose, target)),
             yaw_tolerance: FACING_TOLERANCE_RAD,
             rotation_only: true,
             ..*like
         }
     }
 
+    /// Scan turn `turn` (0-based) of the look-around that began at `origin`.
     fn turn_query(p: &ExecutorParams, origin: Pose2, turn: u32) -> MoveQuery {
         MoveQuery { anchor: origin, f_dist: 0.0, yaw: wrap(p.scan_turn_rad * f64::from(turn + 1)), d_s: 0.0 }
     }
@@ -1043,7 +1042,7 @@ impl Mission {
                 // Look first where the target was last seen (a person who
                 // walked out of view went that way), then on round from there.
                 let origin = match f.predicted(stamp) {
-                    Some(t) => Pose2::new(pose.x, pose.y, wrap((t.y - pose.y).atan2(t.x - pose.x) - p.scan_turn_rad)),
+                    Some(t) => Pose2::new(pose.x, pose.y, wrap(bearing(pose, &t) - p.scan_turn_rad)),
                     None => pose,
                 };
                 let what = ExploreGoalFor::Scan { leg: 0, origin, announce: true };
@@ -1197,6 +1196,11 @@ fn window_mask(window: u32) -> u64 {
         64 => u64::MAX,
         w => (1u64 << w) - 1,
     }
+}
+
+/// The direction from `pose` to `target` (odom), rad.
+fn bearing(pose: Pose2, target: &Vector3<f64>) -> f64 {
+    (target.y - pose.y).atan2(target.x - pose.x)
 }
 
 /// A sighting this close to an outvoted candidate's place is that object, m.

@@ -79,13 +79,16 @@
 //!   relative to the robot. It is dropped when time runs backwards.
 //! - Moving obstacles: a cell that appears where a frame `moving_lookback_s`
 //!   (0.25 s) earlier saw free space beyond it (by a voxel plus three
-//!   standard deviations of the depth error at that range) is something
-//!   that moved there — a person walking — and so is every cell of the
-//!   frame within `moving_cluster_m` (0.3 m) of it. Out of view such cells
+//!   standard deviations of the depth error at that range, along its 1°
+//!   bearing and one neighbouring bearing: `cloud::SeenRange::free_beyond`)
+//!   is something that moved there — a person walking — and so is every
+//!   cell of the frame within `moving_cluster_m` (0.3 m) of it, and every
+//!   cell within that of a cell remembered as moving in the last
+//!   `moving_memory_s` (a person who pauses is still a person). A cell
+//!   remembered as standing never becomes moving. Out of view moving cells
 //!   are remembered for `moving_memory_s` (1.5 s) only: a person who walked
 //!   past the robot's side must not stay behind as a wall it can neither
-//!   see nor turn through. A person who stands still stops counting as
-//!   moving after a look-back and is remembered like anything else.
+//!   see nor turn through.
 //! - No progress: while moving, if the distance to the goal has not dropped
 //!   by `progress_distance` (0.1 m) within `progress_window_s` (5 s of sensor
 //!   time), the step reports NO_PROGRESS once with a stop and the window
@@ -267,7 +270,7 @@ struct RecentView {
 /// D455's depth error, which grows with the square of range (≈ 2 % at 4 m,
 /// `docs/perception.md`), m.
 fn moved_in_margin(range_m: f64) -> f64 {
-    0.1 + 3.0 * 0.005 * range_m * range_m
+    0.1 + 3.0 * vlnav_geometry::depth::d455_sigma_m(range_m)
 }
 
 /// The command and what led to it.
@@ -432,15 +435,15 @@ impl RobotState {
     /// memory becomes this frame's cells and the still-valid old ones.
     fn merge_memory(&mut self, cloud: &ObstacleCloud, input: &StepInput<'_>, p: &FollowParams) -> ObstacleCloud {
         let mut cells = cloud.cells.clone();
-        let moving = self.moving_cells(cloud, input, p);
+        let ats: Vec<Vector2<f64>> =
+            cloud.cells.iter().map(|c| input.pose.transform(&Vector2::new(c.x as f64, c.y as f64))).collect();
+        let moving = self.moving_cells(cloud, &ats, input.stamp, p);
         let now: Vec<((i32, i32), Remembered)> = cloud
             .cells
             .iter()
+            .zip(&ats)
             .zip(moving)
-            .map(|(c, moving)| {
-                let at = input.pose.transform(&Vector2::new(c.x as f64, c.y as f64));
-                (memory_key(&at), Remembered { at, cell: *c, stamp: input.stamp, moving })
-            })
+            .map(|((c, &at), moving)| (memory_key(&at), Remembered { at, cell: *c, stamp: input.stamp, moving }))
             .collect();
         let current: BTreeSet<(i32, i32)> = now.iter().map(|(k, _)| *k).collect();
         self.memory.retain(|k, m| {
@@ -475,30 +478,25 @@ impl RobotState {
     /// cells near a cell remembered as moving within `moving_memory_s` (the
     /// same body a moment ago: a person who pauses is still a person). A
     /// cell remembered as standing (a wall seen before the person came
-    /// beside it) never becomes moving.
-    fn moving_cells(&self, cloud: &ObstacleCloud, input: &StepInput<'_>, p: &FollowParams) -> Vec<bool> {
+    /// beside it) never becomes moving. `ats`: the cells in `odom`.
+    fn moving_cells(&self, cloud: &ObstacleCloud, ats: &[Vector2<f64>], stamp: f64, p: &FollowParams) -> Vec<bool> {
         let mut moving = vec![false; cloud.cells.len()];
-        let earlier = self.recent.iter().rev().find(|v| input.stamp - v.stamp >= p.moving_lookback_s);
+        let earlier = self.recent.iter().rev().find(|v| stamp - v.stamp >= p.moving_lookback_s);
         let r = p.moving_cluster_m;
-        let recently_moving: Vec<Vector2<f64>> = self
-            .memory
-            .values()
-            .filter(|m| m.moving && input.stamp - m.stamp <= p.moving_memory_s)
-            .map(|m| m.at)
-            .collect();
+        let recently_moving: Vec<Vector2<f64>> =
+            self.memory.values().filter(|m| m.moving && stamp - m.stamp <= p.moving_memory_s).map(|m| m.at).collect();
         let mut seeds = Vec::new();
         let mut standing = vec![false; cloud.cells.len()];
-        for (k, c) in cloud.cells.iter().enumerate() {
+        for (k, (c, at)) in cloud.cells.iter().zip(ats).enumerate() {
             if c.blocking == 0 {
                 continue;
             }
-            let at = input.pose.transform(&Vector2::new(c.x as f64, c.y as f64));
-            if self.memory.get(&memory_key(&at)).is_some_and(|m| !m.moving && m.stamp < input.stamp) {
+            if self.memory.get(&memory_key(at)).is_some_and(|m| !m.moving && m.stamp < stamp) {
                 standing[k] = true;
                 continue;
             }
             let moved_in = earlier.is_some_and(|e| {
-                let then = e.pose.inverse_transform(&at);
+                let then = e.pose.inverse_transform(at);
                 e.seen.free_beyond(&then, moved_in_margin(then.norm()))
             });
             if moved_in || recently_moving.iter().any(|q| (q - at).norm() <= r) {

@@ -202,12 +202,7 @@ pub async fn run_trial(ctx: Arc<RunContext>, spec: TrialSpec, with_plot: bool) -
             record.final_position = Point2::new(t1.pose.x, t1.pose.y);
             if let Some(name) = &instruction.follow {
                 // G_d of a FOLLOW: where the followed person is at the end.
-                let k = loaded
-                    .world
-                    .pedestrians
-                    .iter()
-                    .position(|p| loaded.world.entity(p.entity).is_some_and(|e| &e.name == name));
-                if let Some(at) = k.and_then(|k| t1.pedestrians.get(k)) {
+                if let Some(at) = loaded.world.pedestrian_index(name).and_then(|k| t1.pedestrians.get(k)) {
                     record.destination = Point2::new(at.x, at.y);
                 }
             }

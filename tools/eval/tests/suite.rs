@@ -83,8 +83,10 @@ fn every_instruction_plans_and_names_landmarks_of_its_world() {
             }
             assert!(ins.radius >= 0.5, "{who}: radius below the executor's own arrival tolerance");
             if let Some(name) = &ins.follow {
-                let walks = w.pedestrians.iter().any(|p| w.entity(p.entity).is_some_and(|e| &e.name == name));
-                assert!(walks, "{who}: follows `{name}`, who is not a pedestrian of the world");
+                assert!(
+                    w.pedestrian_index(name).is_some(),
+                    "{who}: follows `{name}`, who is not a pedestrian of the world"
+                );
                 assert!(plan.steps.iter().any(|st| st.action == Action::Follow), "{who}: follows without a FOLLOW");
             }
         }
