@@ -101,7 +101,12 @@ impl SeenRange {
     }
 
     fn bin(&self, d: &Vector2<f64>) -> usize {
-        let f = (d.y.atan2(d.x) + std::f64::consts::PI) / std::f64::consts::TAU;
+        self.bin_of(d.y.atan2(d.x))
+    }
+
+    /// The bin of a bearing (any angle; wrapped to [−π, π)).
+    fn bin_of(&self, bearing: f64) -> usize {
+        let f = (vlnav_geometry::wrap_angle(bearing) + std::f64::consts::PI) / std::f64::consts::TAU;
         ((f * Self::BINS as f64) as usize).min(Self::BINS - 1)
     }
 
@@ -128,22 +133,25 @@ impl SeenRange {
     }
 
     /// Whether the frame saw free space at least `margin` m beyond `p`
-    /// (`base_link`) along its bearing and the bearing 1° to one side:
-    /// measured that far, and nothing blocking nearer. (The neighbour keeps
-    /// a point on an object's outline, whose own bin may hold only rays
-    /// that passed it by, from counting as seen through.)
-    pub fn free_beyond(&self, p: &Vector2<f64>, margin: f64) -> bool {
+    /// (`base_link`) along every bearing within `half_angle` rad of its own:
+    /// measured that far, and nothing blocking nearer. (A bin keeps the
+    /// farthest range it measured, so the bin an object's outline falls in
+    /// may hold only rays that passed it by; the caller's `half_angle` covers
+    /// the point's own extent and the outline's quantisation, so a point on
+    /// a standing object's outline never counts as seen through.)
+    pub fn free_beyond(&self, p: &Vector2<f64>, margin: f64, half_angle: f64) -> bool {
         let d = p - self.origin;
         if self.range.is_empty() || self.nearest_obstacle.is_empty() {
             return false;
         }
-        let k = self.bin(&d);
         let need = d.norm() + margin;
-        let free = |o: usize| {
-            let j = (k + o) % Self::BINS;
+        let bearing = d.y.atan2(d.x);
+        let (lo, hi) = (self.bin_of(bearing - half_angle.max(0.0)), self.bin_of(bearing + half_angle.max(0.0)));
+        let n = (hi + Self::BINS - lo) % Self::BINS;
+        (0..=n).all(|o| {
+            let j = (lo + o) % Self::BINS;
             f64::from(self.range[j].min(self.nearest_obstacle[j])) >= need
-        };
-        free(0) && (free(Self::BINS - 1) || free(1))
+        })
     }
 
     /// Whether the frame saw as far as `p` (`base_link`) along its bearing,
@@ -404,7 +412,7 @@ mod tests {
     }
 
     #[test]
-    fn free_space_ends_at_the_nearest_obstacle_of_a_bearing_and_a_neighbour() {
+    fn free_space_ends_at_the_nearest_obstacle_within_the_half_angle() {
         let mut seen = SeenRange::new(Vector2::zeros());
         let at = |deg: f64, r: f64| Vector2::new(r * deg.to_radians().cos(), r * deg.to_radians().sin());
         // The floor seen to 4 m along −5°…+5°; two posts 2 m away at 0.2°–0.8°
@@ -417,11 +425,14 @@ mod tests {
             let p = at(deg, 2.0);
             seen.record_obstacle(p.x, p.y);
         }
-        assert!(seen.free_beyond(&at(-3.5, 3.0), 0.2), "floor seen to 4 m there");
-        assert!(!seen.free_beyond(&at(-3.5, 3.9), 0.2), "not beyond what was measured");
-        assert!(!seen.free_beyond(&at(0.5, 3.0), 0.2), "behind a post");
-        assert!(seen.free_beyond(&at(-0.5, 3.0), 0.2), "beside a post, its other neighbour free");
-        assert!(!seen.free_beyond(&at(1.5, 3.0), 0.2), "between the posts: both neighbours blocked");
-        assert!(!seen.free_beyond(&at(30.0, 1.0), 0.2), "never measured");
+        let deg = 1f64.to_radians();
+        assert!(seen.free_beyond(&at(-3.5, 3.0), 0.2, deg), "floor seen to 4 m there");
+        assert!(!seen.free_beyond(&at(-3.5, 3.9), 0.2, deg), "not beyond what was measured");
+        assert!(!seen.free_beyond(&at(0.5, 3.0), 0.2, 0.0), "behind a post");
+        assert!(seen.free_beyond(&at(-0.5, 3.0), 0.2, 0.3 * deg), "beside a post, clear of its outline");
+        assert!(!seen.free_beyond(&at(-0.5, 3.0), 0.2, deg), "within a degree of the post's outline");
+        assert!(!seen.free_beyond(&at(1.5, 3.0), 0.2, deg), "between the posts, within a degree of both");
+        assert!(!seen.free_beyond(&at(-3.5, 3.0), 0.2, 2.0 * deg), "the half angle reaches past the measured floor");
+        assert!(!seen.free_beyond(&at(30.0, 1.0), 0.2, deg), "never measured");
     }
 }

@@ -79,13 +79,18 @@
 //!   relative to the robot. It is dropped when time runs backwards.
 //! - Moving obstacles: a cell that appears where a frame `moving_lookback_s`
 //!   (0.25 s) earlier saw free space beyond it (by a voxel plus three
-//!   standard deviations of the depth error at that range, along its 1°
-//!   bearing and one neighbouring bearing: `cloud::SeenRange::free_beyond`)
-//!   is something that moved there — a person walking — and so is every
+//!   standard deviations of the depth error at that range, along every
+//!   bearing within one 1° bin plus what 5 cm subtend at its range of its
+//!   own: `cloud::SeenRange::free_beyond`, `moved_in_half_angle`) is
+//!   something that moved there — a person walking — and so is every
 //!   cell of the frame within `moving_cluster_m` (0.3 m) of it, and every
 //!   cell within that of a cell remembered as moving in the last
 //!   `moving_memory_s` (a person who pauses is still a person). A cell
-//!   remembered as standing never becomes moving. Out of view moving cells
+//!   remembered as standing never becomes moving. (With the cell's own bin
+//!   and one neighbour only, the outline of a standing person or statue
+//!   seen while the robot turned on the spot counted as moving in the demo
+//!   hall: it was forgotten once out of view and the robot, driving on
+//!   beside it, wedged itself against the person.) Out of view moving cells
 //!   are remembered for `moving_memory_s` (1.5 s) only: a person who walked
 //!   past the robot's side must not stay behind as a wall it can neither
 //!   see nor turn through.
@@ -272,6 +277,19 @@ struct RecentView {
 fn moved_in_margin(range_m: f64) -> f64 {
     0.1 + 3.0 * vlnav_geometry::depth::d455_sigma_m(range_m)
 }
+
+/// How far to each side of a cell's bearing an earlier frame must have
+/// seen free space for the cell to have moved in, rad: one 1° bin (an
+/// outline falls anywhere inside the bin that holds it) plus the bearing
+/// that the cell's own extent and odometry's jitter over the look-back
+/// (`MOVED_IN_SLACK_M`) subtend at its range.
+fn moved_in_half_angle(range_m: f64) -> f64 {
+    1f64.to_radians() + (MOVED_IN_SLACK_M / range_m.max(0.1)).atan()
+}
+
+/// A cell's half-diagonal (0.035 m of a 5 cm voxel) plus 1.5 cm of odometry
+/// jitter over the look-back, m.
+const MOVED_IN_SLACK_M: f64 = 0.05;
 
 /// The command and what led to it.
 #[derive(Clone, Debug, PartialEq)]
@@ -497,7 +515,7 @@ impl RobotState {
             }
             let moved_in = earlier.is_some_and(|e| {
                 let then = e.pose.inverse_transform(at);
-                e.seen.free_beyond(&then, moved_in_margin(then.norm()))
+                e.seen.free_beyond(&then, moved_in_margin(then.norm()), moved_in_half_angle(then.norm()))
             });
             if moved_in || recently_moving.iter().any(|q| (q - at).norm() <= r) {
                 moving[k] = true;
@@ -811,6 +829,110 @@ mod tests {
         assert_eq!(remembered_after(&mut state, &frame(4.0, None), 1.5), 2);
         assert_eq!(remembered_after(&mut state, &frame(4.0, None), 2.0), 1);
         assert_eq!(remembered_after(&mut state, &frame(4.0, None), 15.0), 1);
+    }
+
+    /// One frame of a robot at `pose` looking at a post of radius 0.25 m
+    /// standing at `post` (odom) in an empty hall whose floor and walls the
+    /// depth reached 10 m away: the post's visible outline as 5 cm cells
+    /// (`base_link`) and the range seen along every bearing.
+    fn post_frame(pose: Pose2, post: Vector2<f64>) -> ObstacleCloud {
+        let c = pose.inverse_transform(&post);
+        let (r, half_fov) = (0.25, 0.75);
+        let mut seen = SeenRange::new(Vector2::zeros());
+        let mut cells: Vec<Cell> = Vec::new();
+        for k in 0..7200 {
+            let a = -std::f64::consts::PI + k as f64 / 7200.0 * std::f64::consts::TAU;
+            if a.abs() > half_fov {
+                continue;
+            }
+            let dir = Vector2::new(a.cos(), a.sin());
+            // Nearest intersection of the ray with the post's circle.
+            let along = dir.dot(&c);
+            let miss = (c - dir * along).norm();
+            if along > 0.0 && miss < r {
+                let hit = dir * (along - (r * r - miss * miss).sqrt());
+                seen.record_obstacle(hit.x, hit.y);
+                let (x, y) =
+                    ((hit.x / 0.05).floor() as f32 * 0.05 + 0.025, (hit.y / 0.05).floor() as f32 * 0.05 + 0.025);
+                if !cells.iter().any(|q| q.x == x && q.y == y) {
+                    cells.push(Cell { x, y, blocking: 3, low: false, no_go: false });
+                }
+            } else {
+                seen.record(10.0 * dir.x, 10.0 * dir.y);
+            }
+        }
+        ObstacleCloud { cells, raw_points: 0, seen: Some(seen) }
+    }
+
+    #[test]
+    fn a_standing_post_seen_while_turning_or_driving_never_counts_as_moving() {
+        // The outline of a standing thing shifts between bins as the robot
+        // turns or nears it, and odometry's heading is off by up to half a
+        // degree from frame to frame; none of its cells moved in.
+        let p = FollowParams::default();
+        let post = Vector2::new(3.5, 0.4);
+        let goal = GoalSpec {
+            pose: Pose2::new(3.0, 0.0, 0.0),
+            position_tolerance: 0.3,
+            yaw_tolerance: 0.2,
+            rotation_only: false,
+        };
+        for drive in [false, true] {
+            let mut state = RobotState::default();
+            for k in 0..60 {
+                let t = k as f64 * 0.1;
+                let pose = if drive {
+                    Pose2::new(0.4 * t, -0.05 * t, 0.02 * t)
+                } else {
+                    Pose2::new(0.0, 0.0, -0.6 + 0.26 * t)
+                };
+                let cloud = post_frame(pose, post);
+                let odom = Pose2::new(pose.x, pose.y, pose.theta + if k % 2 == 0 { 0.008 } else { -0.008 });
+                let input = StepInput {
+                    stamp: t,
+                    pose: odom,
+                    goal,
+                    cloud: &cloud,
+                    max_speed: 0.0,
+                    view: View { yaw: 0.0, half_fov: 0.75 },
+                };
+                state.merge_memory(&cloud, &input, &p);
+                let moving: Vec<Vector2<f64>> = state.memory.values().filter(|m| m.moving).map(|m| m.at).collect();
+                assert!(
+                    moving.is_empty(),
+                    "driving {drive}, {t:.1} s: the post's cells at {moving:?} counted as moving"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn a_post_that_slides_across_the_view_counts_as_moving() {
+        // The same post carried across at 0.6 m/s, 3 m ahead: a person walking.
+        let p = FollowParams::default();
+        let goal = GoalSpec {
+            pose: Pose2::new(3.0, 0.0, 0.0),
+            position_tolerance: 0.3,
+            yaw_tolerance: 0.2,
+            rotation_only: false,
+        };
+        let mut state = RobotState::default();
+        let mut seen_moving = 0;
+        for k in 0..20 {
+            let t = k as f64 * 0.1;
+            let cloud = post_frame(Pose2::new(0.0, 0.0, 0.0), Vector2::new(3.0, -0.6 + 0.6 * t));
+            let input = StepInput {
+                stamp: t,
+                pose: Pose2::new(0.0, 0.0, 0.0),
+                goal,
+                cloud: &cloud,
+                max_speed: 0.0,
+                view: View { yaw: 0.0, half_fov: 0.75 },
+            };
+            state.merge_memory(&cloud, &input, &p);
+            seen_moving += usize::from(state.memory.values().any(|m| m.moving && m.stamp == t));
+        }
+        assert!(seen_moving >= 15, "moving in only {seen_moving} of 20 frames");
     }
 
     fn with_cells(cells: &[(f32, f32)]) -> RobotState {
