@@ -22,6 +22,7 @@
 use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::camera::Camera;
 use vlnav_geometry::depth::DepthView;
+use vlnav_geometry::wrap_angle;
 
 /// Height classification and downsampling settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -104,9 +105,9 @@ impl SeenRange {
         self.bin_of(d.y.atan2(d.x))
     }
 
-    /// The bin of a bearing (any angle; wrapped to [−π, π)).
+    /// The bin of a bearing in [−π, π] (what `atan2` returns).
     fn bin_of(&self, bearing: f64) -> usize {
-        let f = (vlnav_geometry::wrap_angle(bearing) + std::f64::consts::PI) / std::f64::consts::TAU;
+        let f = (bearing + std::f64::consts::PI) / std::f64::consts::TAU;
         ((f * Self::BINS as f64) as usize).min(Self::BINS - 1)
     }
 
@@ -145,8 +146,8 @@ impl SeenRange {
             return false;
         }
         let need = d.norm() + margin;
-        let bearing = d.y.atan2(d.x);
-        let (lo, hi) = (self.bin_of(bearing - half_angle.max(0.0)), self.bin_of(bearing + half_angle.max(0.0)));
+        let (bearing, half) = (d.y.atan2(d.x), half_angle.max(0.0));
+        let (lo, hi) = (self.bin_of(wrap_angle(bearing - half)), self.bin_of(wrap_angle(bearing + half)));
         let n = (hi + Self::BINS - lo) % Self::BINS;
         (0..=n).all(|o| {
             let j = (lo + o) % Self::BINS;
