@@ -45,7 +45,15 @@ pub struct Link {
 impl Link {
     /// Attaches to the gateway and sends `hello` first.
     pub async fn connect(opts: &EdgeOptions, hello: pb::EdgeHello) -> anyhow::Result<Link> {
-        let channel = vlnav_runtime::client::channel(&opts.gateway)
+        let tls = opts.tls.load()?;
+        if tls.is_some() && !opts.gateway.starts_with("https://") {
+            anyhow::bail!(
+                "--tls-ca is given but --gateway {} is not https://: this robot drives only for a gateway it has verified",
+                opts.gateway
+            );
+        }
+        let security = vlnav_runtime::security::ClientSecurity::new(tls, None);
+        let channel = vlnav_runtime::client::channel_with(&opts.gateway, &security)
             .with_context(|| format!("bad --gateway uri {}", opts.gateway))?;
         let mut client = FleetServiceClient::new(channel)
             .max_decoding_message_size(opts.max_message_bytes)

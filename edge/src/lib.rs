@@ -51,6 +51,11 @@ pub struct EdgeOptions {
     /// The gateway's FleetService.
     #[arg(long, env = "VLNAV_EDGE_GATEWAY", default_value = "http://127.0.0.1:50051")]
     pub gateway: String,
+    /// The CA the gateway's certificate is verified against (then --gateway
+    /// must be https://) and this robot's certificate, which must name it
+    /// (`spiffe://vlnav/robot/<robot_id>`; docs/security.md).
+    #[command(flatten)]
+    pub tls: vlnav_runtime::security::ClientTlsArgs,
     /// This robot's id in the fleet.
     #[arg(long, env = "VLNAV_EDGE_ROBOT_ID", default_value = "husky-1")]
     pub robot_id: String,
@@ -134,6 +139,7 @@ impl Default for EdgeOptions {
     fn default() -> Self {
         Self {
             gateway: "http://127.0.0.1:50051".into(),
+            tls: Default::default(),
             robot_id: "husky-1".into(),
             driver: DriverKind::Sim,
             scenario: "demo".into(),

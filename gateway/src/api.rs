@@ -11,17 +11,20 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 use tracing::Instrument;
 use vlnav_proto::v1::{
-    AnswerClarificationRequest, AnswerClarificationResponse, Audio, AudioChunk, AudioFormat, CancelMissionRequest,
-    ClarificationNeeded, EdgeMessage, Finished, GatewayCommand, GetMissionRequest, ListMissionsRequest,
-    ListMissionsResponse, ListRobotsRequest, ListRobotsResponse, Mission, MissionEvent, MissionState, PlanReady,
-    PlanRequest, SubmitMissionRequest, SubmitMissionResponse, Transcribed, WatchMissionRequest,
-    answer_clarification_response, edge_message,
+    AnswerClarificationRequest, AnswerClarificationResponse, Audio, AudioChunk, AudioFormat, AuditRecord,
+    CancelMissionRequest, ClarificationNeeded, EdgeMessage, Finished, GatewayCommand, GetMissionRequest,
+    ListMissionsRequest, ListMissionsResponse, ListRobotsRequest, ListRobotsResponse, Mission, MissionEvent,
+    MissionState, PlanReady, PlanRequest, SubmitMissionRequest, SubmitMissionResponse, Transcribed,
+    WatchMissionRequest, answer_clarification_response, edge_message,
     fleet_service_server::{FleetService, FleetServiceServer},
     mission_event::Kind,
     mission_service_server::{MissionService, MissionServiceServer},
     plan_response, submit_mission_request, submit_mission_response,
 };
+use vlnav_runtime::security::{robot_identity, robot_ids_of_peer};
 use vlnav_runtime::{ServerConfig, ServiceSet};
+
+use crate::auth::{AuthLayer, Caller, TokenStore};
 
 use crate::config::GatewayOptions;
 use crate::executor::MissionRun;
@@ -39,6 +42,10 @@ const AUDIO_CHUNK: usize = 64 * 1024;
 #[derive(Clone)]
 pub struct Gateway {
     fleet: Arc<Fleet>,
+    auth: AuthLayer,
+    /// Attach needs a client certificate naming the robot (set when the
+    /// server verifies client certificates, docs/security.md).
+    robot_certs: bool,
 }
 
 impl Gateway {
@@ -46,7 +53,12 @@ impl Gateway {
         let store = Store::open(&opts.data_dir)?;
         let hub = Hub::open(store)?;
         let pipeline = Pipeline::connect(opts)?;
-        Ok(Self { fleet: Fleet::new(hub, pipeline, opts.executor.clone()) })
+        let tokens = opts.tokens_file.as_deref().map(TokenStore::open).transpose()?;
+        Ok(Self {
+            fleet: Fleet::new(hub, pipeline, opts.executor.clone()),
+            auth: AuthLayer::new(tokens),
+            robot_certs: false,
+        })
     }
 
     /// Ends every robot actor and waits (up to 5 s) until nothing else holds
@@ -73,18 +85,44 @@ impl Gateway {
         self.fleet.pipeline()
     }
 
-    /// MissionService and FleetService, ready for `vlnav_runtime::serve`.
+    /// MissionService and FleetService behind the token layer, ready for
+    /// `vlnav_runtime::serve`. When `server` verifies client certificates,
+    /// a robot attaches only with a certificate naming it.
     pub fn services(&self, server: &ServerConfig) -> ServiceSet {
         let max = server.max_message_bytes;
+        let me = Self { robot_certs: server.tls.tls_client_ca.is_some(), ..self.clone() };
         ServiceSet::new()
             .add(
                 "mission-api",
-                MissionServiceServer::new(self.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
+                me.auth.wrap(
+                    MissionServiceServer::new(me.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
+                ),
             )
             .add(
                 "fleet",
-                FleetServiceServer::new(self.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
+                me.auth.wrap(
+                    FleetServiceServer::new(me.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
+                ),
             )
+    }
+
+    /// Whether callers must present bearer tokens.
+    pub fn authenticates(&self) -> bool {
+        self.auth.enabled()
+    }
+
+    /// The mission `id`, if `caller` may see it.
+    fn mission_for(&self, caller: &Caller, id: &str, what: &str) -> Result<Mission, Status> {
+        let mission = self.mission(id)?;
+        caller.check_robot(&mission.robot_id, what)?;
+        Ok(mission)
+    }
+
+    fn audit(&self, id: &str, caller: &Caller, action: &str, detail: String) {
+        let record = AuditRecord { action: action.into(), caller: caller.name.clone(), unix_time: unix_now(), detail };
+        if let Err(e) = self.hub().record(id, 0.0, None, move |m| m.audit.push(record)) {
+            tracing::error!(mission = %id, "cannot record the audit trail: {e}");
+        }
     }
 
     fn mission(&self, id: &str) -> Result<Mission, Status> {
@@ -120,10 +158,13 @@ impl Gateway {
         Ok(resp.into_inner())
     }
 
-    async fn submit(&self, req: SubmitMissionRequest) -> Result<SubmitMissionResponse, Status> {
+    async fn submit(&self, caller: &Caller, req: SubmitMissionRequest) -> Result<SubmitMissionResponse, Status> {
         let robot_id = req.robot_id.trim().to_string();
         if robot_id.is_empty() && !req.dry_run {
             return Err(Status::invalid_argument("robot_id is empty; ListRobots shows the connected robots"));
+        }
+        if !robot_id.is_empty() {
+            caller.check_robot(&robot_id, "submitting a mission to")?;
         }
         match &req.instruction {
             None => return Err(Status::invalid_argument("the instruction is missing: set `text` or `audio`")),
@@ -169,11 +210,15 @@ impl Gateway {
             instruction: text.clone(),
             state: MissionState::Pending as i32,
             dry_run: req.dry_run,
-            created_unix: std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map(|d| d.as_secs_f64())
-                .unwrap_or(0.0),
+            created_unix: unix_now(),
             trace_id,
+            submitted_by: caller.name.clone(),
+            audit: vec![AuditRecord {
+                action: "submit".into(),
+                caller: caller.name.clone(),
+                unix_time: unix_now(),
+                detail: String::new(),
+            }],
             ..Default::default()
         };
         if let Err(e) = self.hub().create(record) {
@@ -314,7 +359,8 @@ impl MissionService for Gateway {
         &self,
         request: Request<SubmitMissionRequest>,
     ) -> Result<Response<SubmitMissionResponse>, Status> {
-        self.submit(request.into_inner()).await.map(Response::new)
+        let caller = Caller::of(&request);
+        self.submit(&caller, request.into_inner()).await.map(Response::new)
     }
 
     type WatchMissionStream = EventStream;
@@ -323,8 +369,9 @@ impl MissionService for Gateway {
         &self,
         request: Request<WatchMissionRequest>,
     ) -> Result<Response<Self::WatchMissionStream>, Status> {
+        let caller = Caller::of(&request);
         let id = request.into_inner().mission_id;
-        self.mission(&id)?;
+        self.mission_for(&caller, &id, "watching missions of")?;
         let watch = self.hub().watch(&id).ok_or_else(|| Status::not_found(format!("no mission with id '{id}'")))?;
         let (tx, rx) = mpsc::channel(64);
         let hub = self.hub().clone();
@@ -363,24 +410,34 @@ impl MissionService for Gateway {
     }
 
     async fn get_mission(&self, request: Request<GetMissionRequest>) -> Result<Response<Mission>, Status> {
-        self.mission(&request.into_inner().mission_id).map(Response::new)
+        let caller = Caller::of(&request);
+        self.mission_for(&caller, &request.into_inner().mission_id, "viewing missions of").map(Response::new)
     }
 
     async fn list_missions(
         &self,
         request: Request<ListMissionsRequest>,
     ) -> Result<Response<ListMissionsResponse>, Status> {
+        let caller = Caller::of(&request);
         let req = request.into_inner();
         let limit = match req.limit {
             0 => 100,
             n => n.min(10_000) as usize,
         };
-        Ok(Response::new(ListMissionsResponse { missions: self.hub().list(req.robot_id.trim(), limit) }))
+        let robot = req.robot_id.trim();
+        if !robot.is_empty() {
+            caller.check_robot(robot, "listing missions of")?;
+        }
+        let mut missions = self.hub().list(robot, if caller.robots.is_some() { 10_000 } else { limit });
+        missions.retain(|m| caller.may_act_on(&m.robot_id));
+        missions.truncate(limit);
+        Ok(Response::new(ListMissionsResponse { missions }))
     }
 
     async fn cancel_mission(&self, request: Request<CancelMissionRequest>) -> Result<Response<Mission>, Status> {
+        let caller = Caller::of(&request);
         let id = request.into_inner().mission_id;
-        let mission = self.mission(&id)?;
+        let mission = self.mission_for(&caller, &id, "cancelling missions of")?;
         let state = MissionState::try_from(mission.state).unwrap_or(MissionState::Unspecified);
         if is_terminal(state) {
             return Err(Status::failed_precondition(format!(
@@ -388,6 +445,7 @@ impl MissionService for Gateway {
                 state.as_str_name()
             )));
         }
+        self.audit(&id, &caller, "cancel", String::new());
         self.fleet.cancel(&mission.robot_id, &id).await?;
         self.mission(&id).map(Response::new)
     }
@@ -396,8 +454,9 @@ impl MissionService for Gateway {
         &self,
         request: Request<AnswerClarificationRequest>,
     ) -> Result<Response<AnswerClarificationResponse>, Status> {
+        let caller = Caller::of(&request);
         let req = request.into_inner();
-        let mission = self.mission(&req.mission_id)?;
+        let mission = self.mission_for(&caller, &req.mission_id, "answering for missions of")?;
         if mission.state != MissionState::AwaitingClarification as i32 {
             return Err(Status::failed_precondition(format!(
                 "mission {} is {}, not waiting for an answer",
@@ -411,6 +470,7 @@ impl MissionService for Gateway {
         if req.answer.len() > MAX_INSTRUCTION_BYTES {
             return Err(Status::invalid_argument(format!("the answer is longer than {MAX_INSTRUCTION_BYTES} bytes")));
         }
+        self.audit(&req.mission_id, &caller, "answer", req.answer.trim().to_string());
         let outcome = self.fleet.answer(&mission.robot_id, &req.mission_id, req.answer.trim().to_string()).await?;
         let mission = self.mission(&req.mission_id)?;
         let plan_json = mission.plan_json.clone();
@@ -423,6 +483,10 @@ impl MissionService for Gateway {
             }),
         }))
     }
+}
+
+fn unix_now() -> f64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
 }
 
 fn valid_robot_id(id: &str) -> bool {
@@ -438,6 +502,8 @@ impl FleetService for Gateway {
     type AttachStream = CommandStream;
 
     async fn attach(&self, request: Request<Streaming<EdgeMessage>>) -> Result<Response<Self::AttachStream>, Status> {
+        let certified: Option<Vec<String>> =
+            self.robot_certs.then(|| request.peer_certs().map(|c| robot_ids_of_peer(&c)).unwrap_or_default());
         let mut inbound = request.into_inner();
         let hello = match inbound.message().await? {
             Some(EdgeMessage { kind: Some(edge_message::Kind::Hello(h)) }) => h,
@@ -452,6 +518,24 @@ impl FleetService for Gateway {
                 "robot_id '{}' must be 1–64 characters of letters, digits, '-', '_' or '.'",
                 hello.robot_id
             )));
+        }
+        if let Some(ids) = certified
+            && !ids.contains(&hello.robot_id)
+        {
+            tracing::warn!(claimed = %hello.robot_id, certified = ?ids, "attach refused");
+            return Err(Status::permission_denied(if ids.is_empty() {
+                format!(
+                    "robot '{}' must attach with a client certificate naming it ({}); none was presented",
+                    hello.robot_id,
+                    robot_identity(&hello.robot_id)
+                )
+            } else {
+                format!(
+                    "this certificate belongs to robot [{}], not '{}': a robot attaches only as itself",
+                    ids.join(", "),
+                    hello.robot_id
+                )
+            }));
         }
         let (tx, rx) = mpsc::channel(16);
         let conn = self.fleet.next_conn();
@@ -526,7 +610,10 @@ impl FleetService for Gateway {
         Ok(Response::new(ReceiverStream::new(rx)))
     }
 
-    async fn list_robots(&self, _request: Request<ListRobotsRequest>) -> Result<Response<ListRobotsResponse>, Status> {
-        Ok(Response::new(ListRobotsResponse { robots: self.fleet.list() }))
+    async fn list_robots(&self, request: Request<ListRobotsRequest>) -> Result<Response<ListRobotsResponse>, Status> {
+        let caller = Caller::of(&request);
+        let mut robots = self.fleet.list();
+        robots.retain(|r| caller.may_act_on(&r.robot_id));
+        Ok(Response::new(ListRobotsResponse { robots }))
     }
 }

@@ -22,6 +22,14 @@ pub struct GatewayOptions {
     /// Where missions and their event logs persist.
     #[arg(long, env = "VLNAV_DATA_DIR", default_value = ".vlnav")]
     pub data_dir: PathBuf,
+    /// Bearer tokens (TOML, hashed; docs/security.md), read again when the
+    /// file changes. Without it every caller is anonymous.
+    #[arg(long, env = "VLNAV_TOKENS_FILE")]
+    pub tokens_file: Option<PathBuf>,
+    /// How the gateway reaches the stage services over `https://`: the CA
+    /// their certificates are verified against and the gateway's own certificate.
+    #[command(flatten)]
+    pub stage_tls: vlnav_runtime::security::ClientTlsArgs,
     #[command(flatten)]
     pub executor: ExecutorParams,
 }
@@ -120,8 +128,31 @@ impl GatewayOptions {
             subgoal_uri: uri(ports.subgoal),
             local_planner_uri: uri(ports.local_planner),
             data_dir,
+            tokens_file: None,
+            stage_tls: Default::default(),
             executor: ExecutorParams::default(),
         }
+    }
+}
+
+impl GatewayOptions {
+    /// The same services over `https://`, reached with `tls`.
+    pub fn over_tls(mut self, tls: vlnav_runtime::security::ClientTlsArgs) -> Self {
+        for uri in [
+            &mut self.ingress_uri,
+            &mut self.planner_uri,
+            &mut self.detector_uri,
+            &mut self.reid_uri,
+            &mut self.segmenter_uri,
+            &mut self.subgoal_uri,
+            &mut self.local_planner_uri,
+        ] {
+            if let Some(rest) = uri.strip_prefix("http://") {
+                *uri = format!("https://{rest}");
+            }
+        }
+        self.stage_tls = tls;
+        self
     }
 }
 

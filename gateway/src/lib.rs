@@ -8,9 +8,11 @@
 //! - [`pipeline`]: the gRPC clients of the stage services;
 //! - [`hub`]: mission records, event logs and watchers, persisted in [`store`];
 //! - [`robot`]: the per-robot actor that owns the attach stream and the executor;
+//! - [`auth`]: bearer tokens, roles and the tower layer that checks them;
 //! - [`api`]: the thin tonic layer of MissionService and FleetService.
 
 pub mod api;
+pub mod auth;
 pub mod config;
 pub mod executor;
 pub mod frames;

@@ -21,6 +21,17 @@ struct Cli {
 #[tokio::main]
 async fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    let addr = cli.server.listen_addr(ports::GATEWAY);
+    if cli.gateway.tokens_file.is_none() && !addr.ip().is_loopback() {
+        if !cli.server.insecure {
+            anyhow::bail!(
+                "refusing to serve {addr} without bearer tokens: give --tokens-file (VLNAV_TOKENS_FILE; \
+                 docs/security.md), listen on a loopback address, or pass --insecure to let anyone who reaches \
+                 {addr} submit missions"
+            );
+        }
+        eprintln!("vlnav-gateway: INSECURE: no bearer tokens on {addr}; anyone who reaches it can submit missions");
+    }
     let build = async { Ok(Gateway::new(&cli.gateway)?.services(&ServerConfig::default())) };
     vlnav_runtime::serve_main("vlnav-gateway", ports::GATEWAY, cli.server.clone(), build).await
 }

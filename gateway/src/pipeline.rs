@@ -7,7 +7,8 @@ use vlnav_proto::v1::{
     reid_service_client::ReidServiceClient, segmenter_service_client::SegmenterServiceClient,
     subgoal_service_client::SubgoalServiceClient,
 };
-use vlnav_runtime::client::{TracedChannel, channel};
+use vlnav_runtime::client::{TracedChannel, channel_with};
+use vlnav_runtime::security::ClientSecurity;
 
 use crate::config::GatewayOptions;
 
@@ -28,9 +29,9 @@ const MAX_MESSAGE: usize = 128 * 1024 * 1024;
 /// A stage client over a lazily connecting traced channel to `$uri`, with
 /// the frame-sized message limits.
 macro_rules! stage_client {
-    ($client:ident, $uri:expr) => {{
+    ($client:ident, $uri:expr, $security:expr) => {{
         let uri: &str = $uri;
-        $client::new(channel(uri).map_err(|e| anyhow::anyhow!("bad service address {uri}: {e}"))?)
+        $client::new(channel_with(uri, $security).map_err(|e| anyhow::anyhow!("bad service address {uri}: {e}"))?)
             .max_decoding_message_size(MAX_MESSAGE)
             .max_encoding_message_size(MAX_MESSAGE)
     }};
@@ -39,14 +40,16 @@ macro_rules! stage_client {
 impl Pipeline {
     /// Lazily connecting clients: services may start after the gateway.
     pub fn connect(opts: &GatewayOptions) -> anyhow::Result<Self> {
+        let security = ClientSecurity::new(opts.stage_tls.load()?, None);
+        let s = &security;
         Ok(Self {
-            ingress: stage_client!(IngressServiceClient, &opts.ingress_uri),
-            planner: stage_client!(PlannerServiceClient, &opts.planner_uri),
-            detector: stage_client!(DetectorServiceClient, &opts.detector_uri),
-            reid: stage_client!(ReidServiceClient, &opts.reid_uri),
-            segmenter: stage_client!(SegmenterServiceClient, &opts.segmenter_uri),
-            subgoal: stage_client!(SubgoalServiceClient, &opts.subgoal_uri),
-            local_planner: stage_client!(LocalPlannerServiceClient, &opts.local_planner_uri),
+            ingress: stage_client!(IngressServiceClient, &opts.ingress_uri, s),
+            planner: stage_client!(PlannerServiceClient, &opts.planner_uri, s),
+            detector: stage_client!(DetectorServiceClient, &opts.detector_uri, s),
+            reid: stage_client!(ReidServiceClient, &opts.reid_uri, s),
+            segmenter: stage_client!(SegmenterServiceClient, &opts.segmenter_uri, s),
+            subgoal: stage_client!(SubgoalServiceClient, &opts.subgoal_uri, s),
+            local_planner: stage_client!(LocalPlannerServiceClient, &opts.local_planner_uri, s),
         })
     }
 }

@@ -5,11 +5,13 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::Duration;
 
-use vlnav::up::{Stack, UpArgs, up};
+use vlnav::up::{Stack, StackSecurity, UpArgs, up};
 use vlnav_proto::v1::{
     GetMissionRequest, ListRobotsRequest, Mission, MissionEvent, WatchMissionRequest,
     fleet_service_client::FleetServiceClient, mission_service_client::MissionServiceClient,
 };
+use vlnav_runtime::client::{TracedChannel, channel_with};
+use vlnav_runtime::security::ClientSecurity;
 
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("tests/ sits in the repository").to_path_buf()
@@ -65,6 +67,7 @@ impl TestStack {
         t
     }
 
+    /// The gateway's address: https:// unless the stack runs `--insecure`.
     pub fn uri(&self) -> String {
         self.stack.gateway_uri()
     }
@@ -73,12 +76,66 @@ impl TestStack {
         self.stack.gateway_addr.to_string()
     }
 
-    pub async fn missions(&self) -> MissionServiceClient<tonic::transport::Channel> {
-        MissionServiceClient::connect(self.uri()).await.expect("gateway reachable")
+    /// The stack's development credentials (docs/security.md).
+    pub fn security(&self) -> &StackSecurity {
+        self.stack.security.as_ref().expect("the stack runs with TLS and tokens")
+    }
+
+    /// What an operator's client brings (the CA, the operator token).
+    pub fn operator(&self) -> ClientSecurity {
+        self.stack.operator().expect("the operator's credentials load")
+    }
+
+    /// The CA and a bearer `token`.
+    pub fn with_token(&self, token: &str) -> ClientSecurity {
+        ClientSecurity::new(self.operator().tls, Some(token.to_string()))
+    }
+
+    pub async fn missions(&self) -> MissionServiceClient<TracedChannel> {
+        self.missions_as(&self.operator())
+    }
+
+    pub fn missions_as(&self, security: &ClientSecurity) -> MissionServiceClient<TracedChannel> {
+        MissionServiceClient::new(channel_with(&self.uri(), security).expect("a valid gateway address"))
+    }
+
+    /// A FleetService client with the operator's token (ListRobots).
+    pub fn fleet(&self) -> FleetServiceClient<TracedChannel> {
+        FleetServiceClient::new(channel_with(&self.uri(), &self.operator()).expect("a valid gateway address"))
+    }
+
+    /// A FleetService client presenting robot `robot_id`'s certificate (issued if new).
+    pub fn fleet_as_robot(&self, robot_id: &str) -> FleetServiceClient<TracedChannel> {
+        let tls = match &self.stack.security {
+            Some(sec) => sec.robot(robot_id).and_then(|a| a.load()).expect("the robot's certificate"),
+            None => None,
+        };
+        let security = ClientSecurity::new(tls, None);
+        FleetServiceClient::new(channel_with(&self.uri(), &security).expect("a valid gateway address"))
+            .max_encoding_message_size(64 << 20)
+    }
+
+    /// What `vlnav eval` needs to run its suite against this stack.
+    pub fn eval_target(&self) -> vlnav_eval::Target {
+        vlnav_eval::Target {
+            gateway_uri: self.uri(),
+            caller: self.operator(),
+            pki: self.stack.security.as_ref().map(|s| s.pki.clone()),
+        }
+    }
+
+    /// grpcurl flags that verify the gateway and send `token`.
+    pub fn grpcurl_auth(&self, token: &str) -> Vec<String> {
+        vec![
+            "-cacert".into(),
+            self.security().pki.ca().display().to_string(),
+            "-H".into(),
+            format!("authorization: Bearer {token}"),
+        ]
     }
 
     pub async fn wait_for_robot(&self, robot_id: &str) {
-        let mut client = FleetServiceClient::connect(self.uri()).await.expect("gateway reachable");
+        let mut client = self.fleet();
         for _ in 0..600 {
             let robots = client.list_robots(ListRobotsRequest {}).await.expect("ListRobots").into_inner().robots;
             if robots.iter().any(|r| r.robot_id == robot_id && r.connected && r.frames_received > 0) {
@@ -113,6 +170,13 @@ impl TestStack {
             .into_inner();
         (events, mission)
     }
+}
+
+/// Runs the real grpcurl (1.8.6, reflection v1alpha) with `auth` flags
+/// first, and returns stdout, or stderr as the error.
+pub fn grpcurl_with(auth: &[String], args: &[&str]) -> Result<String, String> {
+    let all: Vec<&str> = auth.iter().map(String::as_str).chain(args.iter().copied()).collect();
+    grpcurl(&all)
 }
 
 /// Runs the real grpcurl (1.8.6, reflection v1alpha) and returns stdout, or

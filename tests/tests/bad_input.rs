@@ -4,8 +4,7 @@
 use vlnav_e2e::TestStack;
 use vlnav_proto::v1::{
     CameraInfo, CameraIntrinsics, DepthImage, EdgeHello, EdgeMessage, ListRobotsRequest, Pose2D, RgbdFrame,
-    SensorFrame, SubmitMissionRequest, edge_message, fleet_service_client::FleetServiceClient,
-    submit_mission_request::Instruction,
+    SensorFrame, SubmitMissionRequest, edge_message, submit_mission_request::Instruction,
 };
 
 fn text(robot: &str, t: &str, dry_run: bool) -> SubmitMissionRequest {
@@ -46,9 +45,9 @@ fn hello(robot: &str) -> EdgeMessage {
     }
 }
 
-/// Attaches as `robot`, sends `msgs`, returns the status that ends the command stream.
-async fn attach_and_send(uri: &str, msgs: Vec<EdgeMessage>) -> tonic::Status {
-    let mut fleet = FleetServiceClient::connect(uri.to_string()).await.unwrap().max_encoding_message_size(64 << 20);
+/// Attaches with `robot`'s certificate, sends `msgs`, returns the status that ends the command stream.
+async fn attach_and_send(t: &TestStack, robot: &str, msgs: Vec<EdgeMessage>) -> tonic::Status {
+    let mut fleet = t.fleet_as_robot(robot);
     let (tx, rx) = tokio::sync::mpsc::channel(8);
     for m in msgs {
         tx.send(m).await.unwrap();
@@ -104,10 +103,12 @@ async fn bad_input_gets_clear_statuses_and_the_gateway_keeps_serving() {
     assert!(e.message().contains(&first.mission_id), "{}", e.message());
 
     // Malformed frames from an edge agent: NaN pose, wrong depth size, oversize, no hello.
-    let uri = t.uri();
-    let s =
-        attach_and_send(&uri, vec![hello("bad-1"), frame("bad-1", 1, 8, 6, 0.0), frame("bad-1", 2, 8, 6, f64::NAN)])
-            .await;
+    let s = attach_and_send(
+        &t,
+        "bad-1",
+        vec![hello("bad-1"), frame("bad-1", 1, 8, 6, 0.0), frame("bad-1", 2, 8, 6, f64::NAN)],
+    )
+    .await;
     assert_eq!(s.code(), tonic::Code::InvalidArgument, "{s:?}");
     assert!(s.message().contains("odom.theta is not a finite number"), "{}", s.message());
 
@@ -115,22 +116,22 @@ async fn bad_input_gets_clear_statuses_and_the_gateway_keeps_serving() {
     if let Some(edge_message::Kind::Frame(f)) = &mut short.kind {
         f.frame.as_mut().unwrap().depth.as_mut().unwrap().data_mm.truncate(5);
     }
-    let s = attach_and_send(&uri, vec![hello("bad-2"), short]).await;
+    let s = attach_and_send(&t, "bad-2", vec![hello("bad-2"), short]).await;
     assert_eq!(s.code(), tonic::Code::InvalidArgument);
     assert!(s.message().contains("u16 millimetres are expected"), "{}", s.message());
 
-    let s = attach_and_send(&uri, vec![hello("bad-3"), frame("bad-3", 1, 4000, 2500, 0.0)]).await;
+    let s = attach_and_send(&t, "bad-3", vec![hello("bad-3"), frame("bad-3", 1, 4000, 2500, 0.0)]).await;
     assert_eq!(s.code(), tonic::Code::ResourceExhausted, "oversized frame: {s:?}");
 
-    let s = attach_and_send(&uri, vec![frame("bad-4", 1, 8, 6, 0.0)]).await;
+    let s = attach_and_send(&t, "bad-4", vec![frame("bad-4", 1, 8, 6, 0.0)]).await;
     assert_eq!(s.code(), tonic::Code::InvalidArgument);
     assert!(s.message().contains("EdgeHello"), "{}", s.message());
 
-    let s = attach_and_send(&uri, vec![hello("husky-1")]).await;
+    let s = attach_and_send(&t, "husky-1", vec![hello("husky-1")]).await;
     assert_eq!(s.code(), tonic::Code::AlreadyExists, "{s:?}");
 
     // Everyone else is still served: the robot is attached and missions still plan.
-    let mut fleet = FleetServiceClient::connect(uri).await.unwrap();
+    let mut fleet = t.fleet();
     let robots = fleet.list_robots(ListRobotsRequest {}).await.unwrap().into_inner().robots;
     assert!(robots.iter().any(|r| r.robot_id == "husky-1" && r.connected), "{robots:?}");
     let dry = missions.submit_mission(text("", "take a right turn and move 2 m", true)).await.unwrap().into_inner();

@@ -53,7 +53,7 @@ async fn a_seeded_realistic_subset_gives_its_pinned_results() {
     })
     .await;
     let out = tempfile::tempdir().unwrap();
-    let report = vlnav_eval::run_eval(args(out.path()), t.uri()).await.expect("the evaluation runs");
+    let report = vlnav_eval::run_eval(args(out.path()), t.eval_target()).await.expect("the evaluation runs");
     let mut records = report.records.clone();
     records.sort_by(|a, b| (&a.scenario, a.trial).cmp(&(&b.scenario, b.trial)));
     let got: Vec<String> = records

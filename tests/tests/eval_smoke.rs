@@ -32,7 +32,7 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         beside: None,
     };
     let rerun = vlnav_eval::EvalArgs { out: again.path().to_path_buf(), jobs: 1, ..args.clone() };
-    let report = vlnav_eval::run_eval(args, t.uri()).await.expect("the evaluation runs");
+    let report = vlnav_eval::run_eval(args, t.eval_target()).await.expect("the evaluation runs");
     assert_eq!(report.records.len(), 2, "one trial per scenario");
     for r in &report.records {
         assert!(r.frames > 0, "{}: the robot ran", r.scenario);
@@ -46,7 +46,7 @@ async fn a_small_evaluation_runs_through_the_real_services() {
     }
     // Determinism: the same seed, run again (one trial at a time this
     // time), gives the same per-trial records and the same table.
-    let second = vlnav_eval::run_eval(rerun, t.uri()).await.expect("the evaluation runs again");
+    let second = vlnav_eval::run_eval(rerun, t.eval_target()).await.expect("the evaluation runs again");
     assert_eq!(second.trials_csv, report.trials_csv, "the same seed gives the same trials");
     assert_eq!(second.markdown, report.markdown, "the same seed gives the same table");
     t.stack.shutdown().await.unwrap();

@@ -1,17 +1,33 @@
-//! A user's first session, with the real grpcurl: list the services, check
-//! every stage's health, submit the paper's Case 2 instruction and watch it
-//! to MISSION_STATE_SUCCEEDED in the demo world.
+//! A user's first session, with the real grpcurl over TLS with the
+//! credentials `vlnav up` wrote: list the services, check every stage's
+//! health (mutual TLS, the gateway's certificate), submit the paper's Case 2
+//! instruction with the operator token and watch it to
+//! MISSION_STATE_SUCCEEDED in the demo world.
 
 use std::time::Duration;
 
-use vlnav_e2e::{CASE_2, TestStack, grpcurl, json_objects};
+use vlnav_e2e::{CASE_2, TestStack, grpcurl_with, json_objects};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
     let t = TestStack::start(|_| {}).await;
     let addr = t.addr();
+    let sec = t.security();
+    let op = t.grpcurl_auth(&sec.operator_token);
+    let viewer = t.grpcurl_auth(&sec.viewer_token);
+    // Stages accept only callers with a certificate the deployment's CA signed.
+    let mtls: Vec<String> = [
+        "-cacert".into(),
+        sec.pki.ca().display().to_string(),
+        "-cert".into(),
+        sec.pki.gateway_cert().display().to_string(),
+        "-key".into(),
+        sec.pki.gateway_key().display().to_string(),
+    ]
+    .into();
 
-    let services = grpcurl(&["-plaintext", &addr, "list"]).expect("grpcurl list");
+    // Listing needs no token (reflection stays open for grpcurl list/describe).
+    let services = grpcurl_with(&t.grpcurl_auth("")[..2], &[&addr, "list"]).expect("grpcurl list");
     for s in [
         "vlnav.v1.MissionService",
         "vlnav.v1.FleetService",
@@ -33,15 +49,14 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
     ] {
         let target = format!("127.0.0.1:{port}");
         let body = format!(r#"{{"service":"{service}"}}"#);
-        let out = grpcurl(&["-plaintext", "-d", &body, &target, "grpc.health.v1.Health/Check"]).expect("health check");
+        let out = grpcurl_with(&mtls, &["-d", &body, &target, "grpc.health.v1.Health/Check"]).expect("health check");
         assert!(out.contains("SERVING"), "{service} is not serving: {out}");
-        let listed = grpcurl(&["-plaintext", &target, "list"]).expect("stage list");
+        let listed = grpcurl_with(&mtls, &[&target, "list"]).expect("stage list");
         assert!(listed.contains(service), "{service} not listed by its own server: {listed}");
     }
 
     let body = serde_json::json!({"robot_id": "husky-1", "text": CASE_2}).to_string();
-    let out =
-        grpcurl(&["-plaintext", "-d", &body, &addr, "vlnav.v1.MissionService/SubmitMission"]).expect("SubmitMission");
+    let out = grpcurl_with(&op, &["-d", &body, &addr, "vlnav.v1.MissionService/SubmitMission"]).expect("SubmitMission");
     let submitted: serde_json::Value = serde_json::from_str(&out).expect("JSON");
     let id = submitted["missionId"].as_str().expect("missionId").to_string();
     let plan_json: serde_json::Value =
@@ -52,18 +67,14 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
 
     let watch_body = serde_json::json!({"mission_id": id}).to_string();
     let addr2 = addr.clone();
+    let viewer2 = viewer.clone();
     let events = tokio::time::timeout(
         Duration::from_secs(600),
         tokio::task::spawn_blocking(move || {
-            grpcurl(&[
-                "-plaintext",
-                "-max-time",
-                "590",
-                "-d",
-                &watch_body,
-                &addr2,
-                "vlnav.v1.MissionService/WatchMission",
-            ])
+            grpcurl_with(
+                &viewer2,
+                &["-max-time", "590", "-d", &watch_body, &addr2, "vlnav.v1.MissionService/WatchMission"],
+            )
         }),
     )
     .await
@@ -93,15 +104,13 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
     let last = events.last().expect("events");
     assert_eq!(last["finished"]["state"], "MISSION_STATE_SUCCEEDED", "{last}");
 
-    let got = grpcurl(&[
-        "-plaintext",
-        "-d",
-        &serde_json::json!({"mission_id": id}).to_string(),
-        &addr,
-        "vlnav.v1.MissionService/GetMission",
-    ])
+    let got = grpcurl_with(
+        &viewer,
+        &["-d", &serde_json::json!({"mission_id": id}).to_string(), &addr, "vlnav.v1.MissionService/GetMission"],
+    )
     .expect("GetMission");
     let got: serde_json::Value = serde_json::from_str(&got).unwrap();
     assert_eq!(got["state"], "MISSION_STATE_SUCCEEDED");
+    assert_eq!(got["submittedBy"], "local-operator", "{got}");
     t.stack.shutdown().await.unwrap();
 }

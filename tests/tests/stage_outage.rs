@@ -7,8 +7,7 @@ use std::time::Duration;
 
 use vlnav_e2e::TestStack;
 use vlnav_proto::v1::{
-    GetMissionRequest, ListRobotsRequest, MissionState, SubmitMissionRequest, fleet_service_client::FleetServiceClient,
-    submit_mission_request::Instruction,
+    GetMissionRequest, ListRobotsRequest, MissionState, SubmitMissionRequest, submit_mission_request::Instruction,
 };
 
 async fn wait_running(t: &TestStack, id: &str) {
@@ -57,7 +56,7 @@ async fn a_stage_that_stays_down_fails_the_mission_cleanly() {
     assert!(mission.reason.contains("local-planner"), "the reason names the stage: {}", mission.reason);
     assert!(events.last().is_some_and(|e| matches!(e.kind, Some(vlnav_proto::v1::mission_event::Kind::Finished(_)))));
     // Everyone else is still served.
-    let mut fleet = FleetServiceClient::connect(t.uri()).await.unwrap();
+    let mut fleet = t.fleet();
     let robots = fleet.list_robots(ListRobotsRequest {}).await.unwrap().into_inner().robots;
     assert!(
         robots.iter().any(|r| r.robot_id == "husky-1" && r.connected && r.active_mission_id.is_empty()),

@@ -13,9 +13,24 @@ use tonic::transport::channel::Change;
 use tonic::transport::{Channel, Endpoint};
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
-/// Injects the current span's context into outgoing request metadata.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct InjectTraceContext;
+use crate::security::{ClientSecurity, ClientTls};
+
+/// Injects the current span's context into outgoing request metadata, and
+/// the caller's bearer token when it has one (docs/security.md).
+#[derive(Clone, Debug, Default)]
+pub struct InjectTraceContext {
+    bearer: Option<tonic::metadata::MetadataValue<tonic::metadata::Ascii>>,
+}
+
+impl InjectTraceContext {
+    /// Also sends `authorization: Bearer <token>`.
+    pub fn with_bearer(token: &str) -> Result<Self, AddressError> {
+        let value = format!("Bearer {token}")
+            .parse()
+            .map_err(|_| AddressError("the bearer token holds characters a header cannot carry".into()))?;
+        Ok(Self { bearer: Some(value) })
+    }
+}
 
 struct MetadataInjector<'a>(&'a mut tonic::metadata::MetadataMap);
 
@@ -36,6 +51,9 @@ impl Interceptor for InjectTraceContext {
         opentelemetry::global::get_text_map_propagator(|p| {
             p.inject_context(&cx, &mut MetadataInjector(request.metadata_mut()))
         });
+        if let Some(b) = &self.bearer {
+            request.metadata_mut().insert("authorization", b.clone());
+        }
         Ok(request)
     }
 }
@@ -55,9 +73,11 @@ pub const DNS_REFRESH: Duration = Duration::from_secs(10);
 #[error("{0}")]
 pub struct AddressError(String);
 
-/// The endpoint settings every client connection uses.
-fn endpoint(uri: &str) -> Result<Endpoint, AddressError> {
-    Ok(Endpoint::from_shared(uri.to_string())
+/// The endpoint settings every client connection uses; `https://` addresses
+/// are verified against `tls` (and present its certificate), with `domain`
+/// the name the server's certificate must carry when it is not the URI's host.
+fn endpoint(uri: &str, tls: Option<&ClientTls>, domain: Option<&str>) -> Result<Endpoint, AddressError> {
+    let ep = Endpoint::from_shared(uri.to_string())
         .map_err(|e| AddressError(format!("{uri:?} is not a URI ({e}); write http://host:port or dns:///host:port")))?
         .connect_timeout(Duration::from_secs(5))
         .tcp_nodelay(true)
@@ -65,7 +85,16 @@ fn endpoint(uri: &str) -> Result<Endpoint, AddressError> {
         // RGB-D frames are megabytes: h2's default 64 KiB windows would cost a
         // round trip per 64 KiB of every frame.
         .initial_stream_window_size(STREAM_WINDOW)
-        .initial_connection_window_size(CONNECTION_WINDOW))
+        .initial_connection_window_size(CONNECTION_WINDOW);
+    if !uri.starts_with("https://") {
+        return Ok(ep);
+    }
+    let tls = tls.ok_or_else(|| {
+        AddressError(format!(
+            "{uri:?} is TLS but no CA to verify it against was given: pass --tls-ca (VLNAV_TLS_CA), or use http:// for a plaintext server"
+        ))
+    })?;
+    ep.tls_config(tls.config(domain)).map_err(|e| AddressError(format!("{uri:?}: cannot set up TLS: {e}")))
 }
 
 /// A lazily connecting channel to `uri`: the service may start after its
@@ -80,17 +109,36 @@ fn endpoint(uri: &str) -> Result<Endpoint, AddressError> {
 ///   balancer). Pointed at a headless Service, new replicas take load within
 ///   one refresh and removed ones stop getting any. Needs a Tokio runtime.
 pub fn channel(uri: &str) -> Result<TracedChannel, AddressError> {
+    channel_with(uri, &ClientSecurity::none())
+}
+
+/// [`channel`] with TLS and a bearer token: `https://host:port` is verified
+/// against `security.tls`, and `dns:///host:port` connects to each replica
+/// with TLS (verified for `host`) whenever `security.tls` is given.
+pub fn channel_with(uri: &str, security: &ClientSecurity) -> Result<TracedChannel, AddressError> {
+    let tls = security.tls.as_ref();
     let ch = match uri.strip_prefix("dns:///") {
         Some(target) => {
             let (host, port) = host_port(target).ok_or_else(|| {
                 AddressError(format!("{uri:?}: write dns:///host:port (a name or an address, and a port)"))
             })?;
             let name = format!("{host}:{port}");
-            balanced(&format!("http://{name}"), move || tokio::net::lookup_host(name.clone()), DNS_REFRESH)?
+            let scheme = if tls.is_some() { "https" } else { "http" };
+            balanced_with(
+                &format!("{scheme}://{name}"),
+                move || tokio::net::lookup_host(name.clone()),
+                DNS_REFRESH,
+                tls,
+                Some(host),
+            )?
         }
-        None => endpoint(uri)?.connect_lazy(),
+        None => endpoint(uri, tls, None)?.connect_lazy(),
     };
-    Ok(InterceptedService::new(ch, InjectTraceContext))
+    let interceptor = match &security.bearer {
+        Some(token) => InjectTraceContext::with_bearer(token)?,
+        None => InjectTraceContext::default(),
+    };
+    Ok(InterceptedService::new(ch, interceptor))
 }
 
 fn host_port(target: &str) -> Option<(&str, u16)> {
@@ -116,7 +164,24 @@ enum Member {
 /// A channel balanced over the addresses `resolve` returns, called now and
 /// then every `refresh`. `fallback_uri` is what requests go to while it
 /// returns none. The resolver task ends when the channel is dropped.
-pub fn balanced<R, F, I>(fallback_uri: &str, mut resolve: R, refresh: Duration) -> Result<Channel, AddressError>
+pub fn balanced<R, F, I>(fallback_uri: &str, resolve: R, refresh: Duration) -> Result<Channel, AddressError>
+where
+    R: FnMut() -> F + Send + 'static,
+    F: Future<Output = std::io::Result<I>> + Send,
+    I: Iterator<Item = SocketAddr>,
+{
+    balanced_with(fallback_uri, resolve, refresh, None, None)
+}
+
+/// [`balanced`] over TLS when `fallback_uri` is `https://`: every replica is
+/// verified against `tls` as `domain`.
+fn balanced_with<R, F, I>(
+    fallback_uri: &str,
+    mut resolve: R,
+    refresh: Duration,
+    tls: Option<&ClientTls>,
+    domain: Option<&str>,
+) -> Result<Channel, AddressError>
 where
     R: FnMut() -> F + Send + 'static,
     F: Future<Output = std::io::Result<I>> + Send,
@@ -125,7 +190,9 @@ where
     let runtime = tokio::runtime::Handle::try_current().map_err(|_| {
         AddressError("a dns:/// address is resolved in the background and needs a Tokio runtime".into())
     })?;
-    let fallback = endpoint(fallback_uri)?;
+    let fallback = endpoint(fallback_uri, tls, domain)?;
+    let scheme = if fallback_uri.starts_with("https://") { "https" } else { "http" };
+    let (tls, domain) = (tls.cloned(), domain.map(str::to_string));
     let (channel, changes) = Channel::balance_channel::<Member>(64);
     changes
         .try_send(Change::Insert(Member::Name, fallback.clone()))
@@ -156,7 +223,7 @@ where
             }
             for member in next.difference(&members) {
                 let ep = match member {
-                    Member::Replica(addr) => match endpoint(&format!("http://{addr}")) {
+                    Member::Replica(addr) => match endpoint(&format!("{scheme}://{addr}"), tls.as_ref(), domain.as_deref()) {
                         Ok(ep) => ep,
                         Err(e) => {
                             tracing::warn!(service = %label, "{e}");

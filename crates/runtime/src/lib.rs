@@ -5,6 +5,8 @@
 //!   telemetry and graceful shutdown;
 //! - [`telemetry`]: tracing + OpenTelemetry (OTLP, W3C trace context);
 //! - [`client`]: channels whose requests carry the caller's trace context;
+//! - [`security`]: TLS settings, certificate identities, bearer tokens and
+//!   the development PKI (docs/security.md);
 //! - [`actor`]: the request/reply helper every service actor uses;
 //! - [`testing`]: a service set served on an ephemeral loopback port, for
 //!   integration tests;
@@ -14,6 +16,7 @@
 pub mod actor;
 pub mod client;
 pub mod perception;
+pub mod security;
 pub mod server;
 pub mod telemetry;
 pub mod testing;

@@ -35,11 +35,28 @@ pub struct ServerConfig {
     /// Largest accepted or sent gRPC message, bytes.
     #[arg(long, env = "VLNAV_MAX_MESSAGE_BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_message_bytes: usize,
+    #[command(flatten)]
+    pub tls: crate::security::ServerTlsArgs,
+    /// Serve plaintext on a non-loopback address (refused otherwise):
+    /// anyone who reaches the port can then call every method.
+    #[arg(long, env = "VLNAV_INSECURE")]
+    pub insecure: bool,
+    /// Callers without a client certificate pass the TLS handshake (the
+    /// gateway: people authenticate with tokens, robots with certificates).
+    #[arg(skip)]
+    pub client_cert_optional: bool,
 }
 
 impl Default for ServerConfig {
     fn default() -> Self {
-        Self { listen: None, request_timeout_s: 30.0, max_message_bytes: 16 * 1024 * 1024 }
+        Self {
+            listen: None,
+            request_timeout_s: 30.0,
+            max_message_bytes: 16 * 1024 * 1024,
+            tls: Default::default(),
+            insecure: false,
+            client_cert_optional: false,
+        }
     }
 }
 
@@ -122,7 +139,9 @@ pub async fn serve(
     routes.add_service(health_svc).add_service(reflection_v1).add_service(reflection_v1alpha);
 
     let addr = listener.local_addr()?;
-    tracing::info!(%addr, services = ?names, "serving");
+    let tls = cfg.tls.load(cfg.client_cert_optional)?;
+    check_exposure(addr, tls.is_some(), cfg.insecure)?;
+    tracing::info!(%addr, services = ?names, tls = tls.is_some(), mutual_tls = cfg.tls.tls_client_ca.is_some(), "serving");
     let drain = {
         let shutdown = shutdown.clone();
         let health = health.clone();
@@ -136,7 +155,11 @@ pub async fn serve(
             tracing::info!(%addr, "shutting down, draining in-flight requests");
         }
     };
-    tonic::transport::Server::builder()
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = tls {
+        builder = builder.tls_config(tls)?;
+    }
+    builder
         .timeout(Duration::from_secs_f64(cfg.request_timeout_s.max(0.001)))
         .tcp_nodelay(true)
         .initial_stream_window_size(crate::client::STREAM_WINDOW)
@@ -148,6 +171,23 @@ pub async fn serve(
         // a response's last segment until the client's delayed ACK (~40 ms).
         .serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), drain)
         .await?;
+    Ok(())
+}
+
+/// Refuses plaintext on an address other hosts can reach unless `insecure`
+/// says so explicitly, and then warns (docs/security.md).
+pub fn check_exposure(addr: SocketAddr, tls: bool, insecure: bool) -> anyhow::Result<()> {
+    if tls || addr.ip().is_loopback() {
+        return Ok(());
+    }
+    if !insecure {
+        anyhow::bail!(
+            "refusing plaintext gRPC on {addr}, which other hosts can reach: give --tls-cert and --tls-key \
+             (VLNAV_TLS_CERT, VLNAV_TLS_KEY), listen on a loopback address, or pass --insecure (VLNAV_INSECURE=true) \
+             to accept that anyone who reaches {addr} can call every method"
+        );
+    }
+    tracing::warn!(%addr, "INSECURE: plaintext gRPC on a non-loopback address; anyone who reaches it can call every method");
     Ok(())
 }
 
@@ -318,4 +358,20 @@ pub mod ports {
     pub const LOCAL_PLANNER: u16 = 50058;
     /// OTLP/gRPC trace receiver built into `vlnav up`.
     pub const TRACE_RECEIVER: u16 = 4317;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plaintext_is_refused_where_other_hosts_can_reach_it_unless_insecure_is_explicit() {
+        let open: SocketAddr = "0.0.0.0:50051".parse().unwrap();
+        let lo: SocketAddr = "127.0.0.1:50051".parse().unwrap();
+        let e = check_exposure(open, false, false).unwrap_err().to_string();
+        assert!(e.contains("--tls-cert") && e.contains("--insecure"), "{e}");
+        assert!(check_exposure(open, true, false).is_ok());
+        assert!(check_exposure(open, false, true).is_ok());
+        assert!(check_exposure(lo, false, false).is_ok());
+    }
 }

@@ -171,9 +171,26 @@ pub fn write_layouts(suite: &Suite, worlds: &[runner::LoadedWorld], dir: &Path) 
     Ok(out)
 }
 
-/// Runs the suite against the gateway at `gateway_uri` (whose stack runs
-/// `args.perception`, which the report names) and writes the report.
-pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<EvalReport> {
+/// The gateway a suite runs against and how to reach it (docs/security.md).
+#[derive(Clone, Debug)]
+pub struct Target {
+    pub gateway_uri: String,
+    /// What the suite's mission client brings (CA, operator token).
+    pub caller: vlnav_runtime::security::ClientSecurity,
+    /// Issues each trial robot's certificate when the gateway wants them.
+    pub pki: Option<vlnav_runtime::security::DevPki>,
+}
+
+impl Target {
+    /// A plaintext gateway without tokens.
+    pub fn plaintext(gateway_uri: String) -> Self {
+        Self { gateway_uri, caller: Default::default(), pki: None }
+    }
+}
+
+/// Runs the suite against `target` (whose stack runs `args.perception`,
+/// which the report names) and writes the report.
+pub async fn run_eval(args: EvalArgs, target: Target) -> anyhow::Result<EvalReport> {
     anyhow::ensure!(args.jobs >= 1, "--jobs must be at least 1");
     anyhow::ensure!(
         args.frame_rate.is_finite() && args.frame_rate > 0.0,
@@ -193,7 +210,9 @@ pub async fn run_eval(args: EvalArgs, gateway_uri: String) -> anyhow::Result<Eva
 
     std::fs::create_dir_all(args.out.join("plots")).with_context(|| format!("cannot create {}", args.out.display()))?;
     let settings = TrialSettings {
-        gateway_uri,
+        gateway_uri: target.gateway_uri,
+        caller: target.caller,
+        pki: target.pki,
         camera_width: args.width.unwrap_or(suite.run.camera_width),
         camera_height: args.height.unwrap_or(suite.run.camera_height),
         frame_rate_hz: args.frame_rate,

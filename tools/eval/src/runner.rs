@@ -31,6 +31,10 @@ const CONTACT_MARGIN_M: f64 = 0.02;
 #[derive(Clone, Debug)]
 pub struct TrialSettings {
     pub gateway_uri: String,
+    /// What the mission client brings (CA, operator token).
+    pub caller: vlnav_runtime::security::ClientSecurity,
+    /// Issues each trial robot's certificate when the gateway wants them.
+    pub pki: Option<vlnav_runtime::security::DevPki>,
     pub camera_width: u32,
     pub camera_height: u32,
     /// Camera frames per second of sensor time (one control cycle each).
@@ -421,6 +425,13 @@ async fn run_mission(
         width: Some(settings.camera_width),
         height: Some(settings.camera_height),
         liveness_timeout_s: settings.stall_timeout_s,
+        tls: match &settings.pki {
+            Some(pki) => {
+                pki.ensure_robot(robot_id)?;
+                pki.client_args(Some((pki.robot_cert(robot_id), pki.robot_key(robot_id))))
+            }
+            None => Default::default(),
+        },
         ..EdgeOptions::default()
     };
     let (tx, mut rx) = mpsc::unbounded_channel();
@@ -450,7 +461,7 @@ async fn run_mission(
         _ = tokio::time::sleep(stall) => anyhow::bail!("edge agent {robot_id} did not attach to {} within {} s", settings.gateway_uri, settings.stall_timeout_s),
     }
 
-    let channel = vlnav_runtime::client::channel(&settings.gateway_uri)
+    let channel = vlnav_runtime::client::channel_with(&settings.gateway_uri, &settings.caller)
         .with_context(|| format!("bad gateway uri {}", settings.gateway_uri))?;
     let mut missions = MissionServiceClient::new(channel);
     let submitted = missions

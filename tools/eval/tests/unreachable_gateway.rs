@@ -20,7 +20,7 @@ async fn trials_against_a_dead_gateway_are_errors_with_a_reason() {
         no_progress: true,
         ..EvalArgs::default()
     };
-    let report = run_eval(args, format!("http://127.0.0.1:{port}")).await.unwrap();
+    let report = run_eval(args, vlnav_eval::Target::plaintext(format!("http://127.0.0.1:{port}"))).await.unwrap();
     assert_eq!(report.trials_run, 4);
     assert_eq!(report.records.len(), 4);
     for r in &report.records {

@@ -21,8 +21,11 @@ pub struct ProfileArgs {
     /// The mission whose trace to profile.
     pub mission_id: String,
     /// Gateway to ask for the mission's trace id.
-    #[arg(long, env = "VLNAV_GATEWAY", default_value = "http://127.0.0.1:50051")]
+    #[arg(long, env = "VLNAV_GATEWAY", default_value = "https://127.0.0.1:50051")]
     pub gateway: String,
+    /// The CA and token to call it with (a viewer's token is enough).
+    #[command(flatten)]
+    pub caller: vlnav_runtime::security::CallerArgs,
     /// Span directory written by the OTLP receiver of `vlnav up`.
     #[arg(long, env = "VLNAV_SPANS_DIR", default_value = DEFAULT_SPANS_DIR)]
     pub spans_dir: PathBuf,
@@ -54,9 +57,13 @@ impl ProfileArgs {
 }
 
 /// Asks the gateway (`MissionService.GetMission`) for a mission's trace id.
-pub async fn mission_trace_id(gateway: &str, mission_id: &str) -> anyhow::Result<String> {
-    let channel =
-        vlnav_runtime::client::channel(gateway).with_context(|| format!("invalid gateway address {gateway:?}"))?;
+pub async fn mission_trace_id(
+    gateway: &str,
+    caller: &vlnav_runtime::security::ClientSecurity,
+    mission_id: &str,
+) -> anyhow::Result<String> {
+    let channel = vlnav_runtime::client::channel_with(gateway, caller)
+        .with_context(|| format!("invalid gateway address {gateway:?}"))?;
     let mut client = MissionServiceClient::new(channel);
     let mission = client
         .get_mission(GetMissionRequest { mission_id: mission_id.to_string() })
@@ -114,7 +121,7 @@ pub async fn profile_trace(source: &SpanSource, trace_id: &str, cycle_span: &str
 pub async fn run_profile(args: ProfileArgs) -> anyhow::Result<String> {
     let trace_id = match &args.trace_id {
         Some(t) => normalize_trace_id(t)?,
-        None => mission_trace_id(&args.gateway, &args.mission_id).await?,
+        None => mission_trace_id(&args.gateway, &args.caller.load()?, &args.mission_id).await?,
     };
     let report = profile_trace(&args.source(), &trace_id, &args.cycle_span).await?;
     Ok(format!("mission {}\n{report}", args.mission_id))

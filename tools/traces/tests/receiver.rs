@@ -118,6 +118,7 @@ async fn sdk_exports_land_in_the_store_and_profile() {
         jaeger: None,
         trace_id: Some(trace_id.clone()),
         cycle_span: "control-cycle".into(),
+        caller: Default::default(),
     };
     let full = run_profile(args).await.unwrap();
     assert!(full.starts_with("mission m-1\n"), "{full}");
@@ -149,6 +150,7 @@ async fn profile_explains_what_is_missing() {
         jaeger: None,
         trace_id: None,
         cycle_span: "control-cycle".into(),
+        caller: Default::default(),
     };
     let err = run_profile(args).await.unwrap_err();
     assert!(err.to_string().contains(&format!("cannot reach the gateway at http://{addr}")), "{err}");

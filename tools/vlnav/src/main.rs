@@ -83,7 +83,18 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             trace_receiver(&args.data_dir, &receiver, args.ephemeral_ports).await?;
             let telemetry = telemetry::init("vlnav")?;
             let stack = up(&args).await?;
-            eprintln!("vlnav is up: gateway on {} (Ctrl-C to stop)", stack.gateway_addr);
+            eprintln!("vlnav is up: gateway on {} (Ctrl-C to stop)", stack.gateway_uri());
+            match &stack.security {
+                Some(sec) => eprintln!(
+                    "TLS and tokens on every link; credentials in {}\n  vlnav mission \"move 2 m ahead\"    (picks them up)\n  {}",
+                    sec.pki.dir.display(),
+                    sec.grpcurl_hint(stack.gateway_addr)
+                ),
+                None => eprintln!(
+                    "INSECURE: plaintext and no tokens (--insecure); anyone who reaches {} can drive the robot",
+                    stack.gateway_addr
+                ),
+            }
             let token = stack.token();
             tokio::spawn(async move {
                 vlnav_runtime::shutdown_signal().await;
@@ -112,11 +123,15 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 audio: None,
                 robot: args.robot_id.clone(),
                 gateway: stack.gateway_uri(),
+                caller: vlnav_runtime::security::CallerArgs {
+                    credentials_dir: args.data_dir.join("security"),
+                    ..Default::default()
+                },
                 dry_run: false,
                 // Nobody answers a demo's questions.
                 stop_on_question: true,
             };
-            wait_for_robot(&stack.gateway_uri(), &args.robot_id).await?;
+            wait_for_robot(&stack.gateway_uri(), &stack.operator()?, &args.robot_id).await?;
             let mission = run_mission(&mission_args, &mut std::io::stdout()).await;
             telemetry.flush();
             // Give the batch exporter a moment to deliver the last spans.
@@ -149,7 +164,12 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 ..UpArgs::default()
             };
             let stack = up(&up_args).await?;
-            let report = vlnav_eval::run_eval(args, stack.gateway_uri()).await;
+            let target = vlnav_eval::Target {
+                gateway_uri: stack.gateway_uri(),
+                caller: stack.operator()?,
+                pki: stack.security.as_ref().map(|s| s.pki.clone()),
+            };
+            let report = vlnav_eval::run_eval(args, target).await;
             stack.shutdown().await?;
             report.map(|_| ())
         }
@@ -171,9 +191,13 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 /// Waits (up to 30 s) until the robot has attached to the gateway.
-async fn wait_for_robot(gateway: &str, robot_id: &str) -> anyhow::Result<()> {
+async fn wait_for_robot(
+    gateway: &str,
+    security: &vlnav_runtime::security::ClientSecurity,
+    robot_id: &str,
+) -> anyhow::Result<()> {
     use vlnav_proto::v1::{ListRobotsRequest, fleet_service_client::FleetServiceClient};
-    let mut client = FleetServiceClient::connect(gateway.to_string()).await?;
+    let mut client = FleetServiceClient::new(vlnav_runtime::client::channel_with(gateway, security)?);
     for _ in 0..300 {
         let robots = client.list_robots(ListRobotsRequest {}).await?.into_inner().robots;
         if robots.iter().any(|r| r.robot_id == robot_id && r.connected && r.frames_received > 0) {

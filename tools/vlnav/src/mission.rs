@@ -18,8 +18,11 @@ pub struct MissionArgs {
     pub audio: Option<std::path::PathBuf>,
     #[arg(long, default_value = "husky-1")]
     pub robot: String,
-    #[arg(long, env = "VLNAV_GATEWAY", default_value = "http://127.0.0.1:50051")]
+    /// The gateway: https:// (what `vlnav up` serves) or http:// (`vlnav up --insecure`).
+    #[arg(long, env = "VLNAV_GATEWAY", default_value = "https://127.0.0.1:50051")]
     pub gateway: String,
+    #[command(flatten)]
+    pub caller: vlnav_runtime::security::CallerArgs,
     /// Plan and validate only; nothing moves.
     #[arg(long)]
     pub dry_run: bool,
@@ -114,11 +117,11 @@ pub fn summarise(m: &Mission) -> String {
 
 /// Submits, prints every event until the mission ends, returns the mission.
 pub async fn run_mission(args: &MissionArgs, out: &mut (impl Write + Send)) -> anyhow::Result<Mission> {
-    let mut client = MissionServiceClient::connect(args.gateway.clone())
-        .await
-        .map_err(|e| anyhow::anyhow!("cannot reach the gateway at {}: {e} (is `vlnav up` running?)", args.gateway))?
-        .max_decoding_message_size(64 << 20)
-        .max_encoding_message_size(64 << 20);
+    let security = args.caller.load()?;
+    let channel = vlnav_runtime::client::channel_with(&args.gateway, &security)
+        .map_err(|e| anyhow::anyhow!("gateway {}: {e}", args.gateway))?;
+    let mut client =
+        MissionServiceClient::new(channel).max_decoding_message_size(64 << 20).max_encoding_message_size(64 << 20);
     let instruction = match (&args.text, &args.audio) {
         (_, Some(path)) => submit_mission_request::Instruction::Audio(Audio {
             format: AudioFormat::Wav as i32,

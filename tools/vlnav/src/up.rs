@@ -8,6 +8,7 @@ use std::path::PathBuf;
 use tokio::net::TcpListener;
 use tokio::task::JoinSet;
 use vlnav_runtime::perception::PerceptionMode;
+use vlnav_runtime::security::{ClientSecurity, ClientTlsArgs, DevPki, read_token};
 use vlnav_runtime::{CancellationToken, ServerConfig, ServiceSet, ports};
 
 use vlnav_gateway::api::Gateway;
@@ -41,8 +42,13 @@ pub struct UpArgs {
     #[arg(long, env = "VLNAV_PERCEPTION", value_enum, default_value_t = PerceptionMode::Realistic)]
     pub perception: PerceptionMode,
     /// Where missions (and the built-in trace receiver's spans) persist.
+    /// The development CA, certificates and tokens live in its `security/`.
     #[arg(long, env = "VLNAV_DATA_DIR", default_value = ".vlnav")]
     pub data_dir: PathBuf,
+    /// Plaintext gRPC and no tokens on every link (docs/security.md). Anyone
+    /// who reaches the gateway can then drive the robot.
+    #[arg(long, env = "VLNAV_INSECURE")]
+    pub insecure: bool,
 }
 
 impl Default for UpArgs {
@@ -57,6 +63,7 @@ impl Default for UpArgs {
             realtime: false,
             perception: PerceptionMode::Realistic,
             data_dir: PathBuf::from(".vlnav"),
+            insecure: false,
         }
     }
 }
@@ -71,9 +78,55 @@ struct StageServer {
     token: CancellationToken,
 }
 
+/// The development credentials of a stack (docs/security.md): a CA, the
+/// servers' and the gateway's certificates, one per robot, and tokens.
+#[derive(Clone, Debug)]
+pub struct StackSecurity {
+    pub pki: DevPki,
+    pub tokens_file: PathBuf,
+    pub operator_token: String,
+    pub viewer_token: String,
+}
+
+impl StackSecurity {
+    /// Opens (first time: creates) the credentials in `dir`.
+    pub fn ensure(dir: &std::path::Path, robots: &[&str]) -> anyhow::Result<Self> {
+        let pki = DevPki::ensure(dir, robots)?;
+        let tokens_file = vlnav_gateway::auth::ensure_dev_tokens(dir)?;
+        Ok(Self {
+            operator_token: read_token(&dir.join("operator.token"))?,
+            viewer_token: read_token(&dir.join("viewer.token"))?,
+            pki,
+            tokens_file,
+        })
+    }
+
+    /// What an operator's client brings: the CA and the operator token.
+    pub fn operator(&self) -> anyhow::Result<ClientSecurity> {
+        Ok(ClientSecurity::new(self.pki.client_args(None).load()?, Some(self.operator_token.clone())))
+    }
+
+    /// Edge-agent TLS of robot `robot_id` (its certificate issued if new).
+    pub fn robot(&self, robot_id: &str) -> anyhow::Result<ClientTlsArgs> {
+        self.pki.ensure_robot(robot_id)?;
+        Ok(self.pki.client_args(Some((self.pki.robot_cert(robot_id), self.pki.robot_key(robot_id)))))
+    }
+
+    /// How to call the gateway at `addr` with grpcurl.
+    pub fn grpcurl_hint(&self, addr: SocketAddr) -> String {
+        format!(
+            "grpcurl -cacert {} -H \"authorization: Bearer $(cat {})\" {addr} list vlnav.v1.MissionService",
+            self.pki.ca().display(),
+            self.pki.dir.join("operator.token").display()
+        )
+    }
+}
+
 /// A running stack. Dropping it does not stop it; call [`Stack::shutdown`].
 pub struct Stack {
     pub gateway_addr: SocketAddr,
+    /// `None` when started with `--insecure`.
+    pub security: Option<StackSecurity>,
     pub ports: StagePorts,
     pub gateway: Gateway,
     token: CancellationToken,
@@ -84,7 +137,16 @@ pub struct Stack {
 
 impl Stack {
     pub fn gateway_uri(&self) -> String {
-        format!("http://{}", self.gateway_addr)
+        let scheme = if self.security.is_some() { "https" } else { "http" };
+        format!("{scheme}://{}", self.gateway_addr)
+    }
+
+    /// What an operator's client brings to this stack (nothing when insecure).
+    pub fn operator(&self) -> anyhow::Result<ClientSecurity> {
+        match &self.security {
+            Some(s) => s.operator(),
+            None => Ok(ClientSecurity::none()),
+        }
     }
 
     pub fn token(&self) -> CancellationToken {
@@ -222,7 +284,18 @@ pub fn apply_perception(
 pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
     let token = CancellationToken::new();
     let mut tasks = JoinSet::new();
-    let cfg = ServerConfig::default();
+    let security = if args.insecure {
+        if !args.listen.ip().is_loopback() {
+            tracing::warn!(listen = %args.listen, "--insecure on a non-loopback address: anyone who reaches it can drive the robot");
+        }
+        None
+    } else {
+        Some(StackSecurity::ensure(&args.data_dir.join("security"), &[&args.robot_id])?)
+    };
+    let mut cfg = ServerConfig { insecure: args.insecure, ..ServerConfig::default() };
+    if let Some(sec) = &security {
+        cfg.tls = sec.pki.server_args();
+    }
     let eph = args.ephemeral_ports;
     let mut detector: vlnav_detector::Options = options_from_env()?;
     let mut reid: vlnav_reid::Options = options_from_env()?;
@@ -263,7 +336,14 @@ pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
         local_planner: port_of["local-planner"],
     };
 
-    let opts = GatewayOptions::loopback(&stage_ports, args.data_dir.clone());
+    let mut opts = GatewayOptions::loopback(&stage_ports, args.data_dir.clone());
+    let mut gateway_cfg = cfg.clone();
+    if let Some(sec) = &security {
+        opts = opts.over_tls(sec.pki.client_args(Some((sec.pki.gateway_cert(), sec.pki.gateway_key()))));
+        opts.tokens_file = Some(sec.tokens_file.clone());
+        // People come with tokens, robots with certificates.
+        gateway_cfg.client_cert_optional = true;
+    }
     let gateway = Gateway::new(&opts)?;
     let l_gateway = if eph {
         bind(true, 0).await?
@@ -271,15 +351,19 @@ pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
         TcpListener::bind(args.listen).await.map_err(|e| anyhow::anyhow!("cannot listen on {}: {e}", args.listen))?
     };
     let gateway_addr = l_gateway.local_addr()?;
-    spawn_server(&mut tasks, &cfg, l_gateway, gateway.services(&cfg), &token);
+    spawn_server(&mut tasks, &gateway_cfg, l_gateway, gateway.services(&gateway_cfg), &token);
 
     if !args.no_robot {
-        let edge = robot_options(args, &format!("http://{gateway_addr}"))?;
+        let scheme = if security.is_some() { "https" } else { "http" };
+        let mut edge = robot_options(args, &format!("{scheme}://{gateway_addr}"))?;
+        if let Some(sec) = &security {
+            edge.tls = sec.robot(&args.robot_id)?;
+        }
         let t = token.clone();
         tasks.spawn(async move { vlnav_edge_agent::run(edge, t).await });
     }
     tracing::info!(gateway = %gateway_addr, ?stage_ports, robot = !args.no_robot, "vlnav is up");
-    Ok(Stack { gateway_addr, ports: stage_ports, gateway, token, tasks, stages, cfg })
+    Ok(Stack { gateway_addr, security, ports: stage_ports, gateway, token, tasks, stages, cfg })
 }
 
 /// The edge agent settings of the simulated robot.

@@ -1,0 +1,465 @@
+//! Transport security every vlnav server and client shares (docs/security.md):
+//! TLS settings of servers and clients, the identities certificates carry
+//! (`spiffe://vlnav/robot/<id>`, `spiffe://vlnav/service/<name>`), bearer
+//! tokens and their hashes, and the development PKI `vlnav up` creates on
+//! first start.
+
+use std::net::{IpAddr, Ipv4Addr, Ipv6Addr};
+use std::path::{Path, PathBuf};
+
+use anyhow::Context as _;
+use sha2::Digest as _;
+use tonic::transport::{Certificate, ClientTlsConfig, Identity, ServerTlsConfig};
+
+/// URI SAN prefix of a robot's certificate; the rest is its `robot_id`.
+pub const ROBOT_IDENTITY_PREFIX: &str = "spiffe://vlnav/robot/";
+/// URI SAN prefix of a service's certificate; the rest is its name.
+pub const SERVICE_IDENTITY_PREFIX: &str = "spiffe://vlnav/service/";
+
+/// The identity a robot's certificate must carry.
+pub fn robot_identity(robot_id: &str) -> String {
+    format!("{ROBOT_IDENTITY_PREFIX}{robot_id}")
+}
+
+/// TLS of a server. With a certificate and key the server speaks only TLS;
+/// with a client CA as well it asks callers for a certificate that CA
+/// signed (mutual TLS).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ServerTlsArgs {
+    /// PEM certificate chain this server presents.
+    #[arg(long, env = "VLNAV_TLS_CERT")]
+    pub tls_cert: Option<PathBuf>,
+    /// PEM private key of --tls-cert.
+    #[arg(long, env = "VLNAV_TLS_KEY")]
+    pub tls_key: Option<PathBuf>,
+    /// PEM CA a caller's certificate must be signed by (mutual TLS).
+    #[arg(long, env = "VLNAV_TLS_CLIENT_CA")]
+    pub tls_client_ca: Option<PathBuf>,
+}
+
+impl ServerTlsArgs {
+    pub fn enabled(&self) -> bool {
+        self.tls_cert.is_some() || self.tls_key.is_some()
+    }
+
+    /// tonic's TLS settings, or `None` for plaintext. `client_optional`:
+    /// callers without a certificate are let through to the next check (the
+    /// gateway's token layer); otherwise the handshake refuses them.
+    pub fn load(&self, client_optional: bool) -> anyhow::Result<Option<ServerTlsConfig>> {
+        let (cert, key) = match (&self.tls_cert, &self.tls_key) {
+            (None, None) if self.tls_client_ca.is_some() => {
+                anyhow::bail!("--tls-client-ca needs --tls-cert and --tls-key: mutual TLS is TLS first")
+            }
+            (None, None) => return Ok(None),
+            (Some(c), Some(k)) => (c, k),
+            _ => anyhow::bail!("give both --tls-cert and --tls-key (VLNAV_TLS_CERT, VLNAV_TLS_KEY), or neither"),
+        };
+        let mut tls = ServerTlsConfig::new().identity(Identity::from_pem(read_pem(cert)?, read_pem(key)?));
+        if let Some(ca) = &self.tls_client_ca {
+            tls = tls.client_ca_root(Certificate::from_pem(read_pem(ca)?)).client_auth_optional(client_optional);
+        }
+        Ok(Some(tls))
+    }
+}
+
+/// TLS of a client: the CA servers are verified against, and the
+/// certificate it presents for mutual TLS.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct ClientTlsArgs {
+    /// PEM CA that signed the servers' certificates; `https://` addresses
+    /// are verified against it and nothing else.
+    #[arg(long, env = "VLNAV_TLS_CA")]
+    pub tls_ca: Option<PathBuf>,
+    /// PEM certificate this client presents (mutual TLS).
+    #[arg(long, env = "VLNAV_TLS_CLIENT_CERT")]
+    pub tls_client_cert: Option<PathBuf>,
+    /// PEM private key of --tls-client-cert.
+    #[arg(long, env = "VLNAV_TLS_CLIENT_KEY")]
+    pub tls_client_key: Option<PathBuf>,
+}
+
+impl ClientTlsArgs {
+    /// The files, read; `None` when no CA is given (plaintext only).
+    pub fn load(&self) -> anyhow::Result<Option<ClientTls>> {
+        if self.tls_ca.is_none() && (self.tls_client_cert.is_some() || self.tls_client_key.is_some()) {
+            anyhow::bail!(
+                "--tls-client-cert needs --tls-ca (VLNAV_TLS_CA): a client verifies the server before it shows its certificate"
+            );
+        }
+        let identity = match (&self.tls_client_cert, &self.tls_client_key) {
+            (None, None) => None,
+            (Some(c), Some(k)) => Some((read_pem(c)?, read_pem(k)?)),
+            _ => anyhow::bail!(
+                "give both --tls-client-cert and --tls-client-key (VLNAV_TLS_CLIENT_CERT, VLNAV_TLS_CLIENT_KEY), or neither"
+            ),
+        };
+        match &self.tls_ca {
+            Some(ca) => Ok(Some(ClientTls { ca_pem: read_pem(ca)?, identity })),
+            None => Ok(None),
+        }
+    }
+}
+
+/// A client's TLS material, read.
+#[derive(Clone, Debug)]
+pub struct ClientTls {
+    ca_pem: Vec<u8>,
+    identity: Option<(Vec<u8>, Vec<u8>)>,
+}
+
+impl ClientTls {
+    pub fn new(ca_pem: Vec<u8>, identity: Option<(Vec<u8>, Vec<u8>)>) -> Self {
+        Self { ca_pem, identity }
+    }
+
+    /// tonic's settings: only the given CA is trusted (no system roots);
+    /// `domain` overrides the name the server's certificate must carry.
+    pub fn config(&self, domain: Option<&str>) -> ClientTlsConfig {
+        let mut cfg = ClientTlsConfig::new().ca_certificate(Certificate::from_pem(&self.ca_pem));
+        if let Some((cert, key)) = &self.identity {
+            cfg = cfg.identity(Identity::from_pem(cert, key));
+        }
+        if let Some(d) = domain {
+            cfg = cfg.domain_name(d);
+        }
+        cfg
+    }
+}
+
+/// What a client brings: TLS (for `https://` addresses) and a bearer token.
+#[derive(Clone, Debug, Default)]
+pub struct ClientSecurity {
+    pub tls: Option<ClientTls>,
+    pub bearer: Option<String>,
+}
+
+impl ClientSecurity {
+    pub fn new(tls: Option<ClientTls>, bearer: Option<String>) -> Self {
+        Self { tls, bearer }
+    }
+
+    /// Nothing: plaintext, no token.
+    pub fn none() -> Self {
+        Self::default()
+    }
+}
+
+/// How a command-line client (`vlnav mission`, `vlnav profile`) calls the
+/// gateway: the CA to verify it and a bearer token, by default those `vlnav
+/// up` wrote to `.vlnav/security`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct CallerArgs {
+    /// PEM CA of the gateway's certificate (for https://); default
+    /// <credentials-dir>/ca.pem when it exists.
+    #[arg(long, env = "VLNAV_CA")]
+    pub ca: Option<PathBuf>,
+    /// File holding the bearer token; default <credentials-dir>/operator.token when it exists.
+    #[arg(long, env = "VLNAV_TOKEN_FILE")]
+    pub token_file: Option<PathBuf>,
+    /// Where `vlnav up` wrote its development credentials.
+    #[arg(long, env = "VLNAV_CREDENTIALS_DIR", default_value = ".vlnav/security")]
+    pub credentials_dir: PathBuf,
+}
+
+impl Default for CallerArgs {
+    fn default() -> Self {
+        Self { ca: None, token_file: None, credentials_dir: PathBuf::from(".vlnav/security") }
+    }
+}
+
+impl CallerArgs {
+    /// The CA and token, read. A file named explicitly must exist; the
+    /// defaults are used only when present.
+    pub fn load(&self) -> anyhow::Result<ClientSecurity> {
+        let pick = |given: &Option<PathBuf>, default: &str| match given {
+            Some(p) => Some(p.clone()),
+            None => Some(self.credentials_dir.join(default)).filter(|p| p.exists()),
+        };
+        let tls = pick(&self.ca, "ca.pem").map(|ca| read_pem(&ca).map(|pem| ClientTls::new(pem, None))).transpose()?;
+        let bearer = pick(&self.token_file, "operator.token").map(|f| read_token(&f)).transpose()?;
+        Ok(ClientSecurity { tls, bearer })
+    }
+}
+
+fn read_pem(path: &Path) -> anyhow::Result<Vec<u8>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    if !bytes.windows(11).any(|w| w == b"-----BEGIN ") {
+        anyhow::bail!("{} is not PEM (no -----BEGIN line)", path.display());
+    }
+    Ok(bytes)
+}
+
+/// Reads a token file: its first non-empty line, trimmed.
+pub fn read_token(path: &Path) -> anyhow::Result<String> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read the token file {}", path.display()))?;
+    text.lines()
+        .map(str::trim)
+        .find(|l| !l.is_empty())
+        .map(str::to_string)
+        .ok_or_else(|| anyhow::anyhow!("the token file {} is empty", path.display()))
+}
+
+/// SHA-256 of a bearer token, lower-case hex: what token files store.
+pub fn token_hash(token: &str) -> String {
+    hex(&sha2::Sha256::digest(token.as_bytes()))
+}
+
+/// A new random bearer token (256 bits, hex).
+pub fn new_token() -> String {
+    hex(&rand::random::<[u8; 32]>())
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// The URI subject-alternative names of a DER certificate (its SPIFFE-style
+/// identities); empty when it cannot be parsed or has none.
+pub fn uri_sans(der: &[u8]) -> Vec<String> {
+    use x509_parser::extensions::GeneralName;
+    let Ok((_, cert)) = x509_parser::parse_x509_certificate(der) else {
+        return Vec::new();
+    };
+    let Ok(Some(san)) = cert.subject_alternative_name() else {
+        return Vec::new();
+    };
+    san.value
+        .general_names
+        .iter()
+        .filter_map(|n| match n {
+            GeneralName::URI(u) => Some(u.to_string()),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The robot ids a peer's certificate chain names (its leaf's
+/// `spiffe://vlnav/robot/<id>` SANs).
+pub fn robot_ids_of_peer(certs: &[impl AsRef<[u8]>]) -> Vec<String> {
+    certs
+        .first()
+        .map(|leaf| {
+            uri_sans(leaf.as_ref())
+                .into_iter()
+                .filter_map(|u| u.strip_prefix(ROBOT_IDENTITY_PREFIX).map(str::to_string))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// A development PKI in one directory: a CA, a server certificate valid for
+/// loopback, the gateway's client
+/// certificate and one certificate per robot. Made on first use, reused
+/// after; keys are written owner-only.
+#[derive(Clone, Debug)]
+pub struct DevPki {
+    pub dir: PathBuf,
+}
+
+/// DNS names the development server certificate carries (with 127.0.0.1
+/// and ::1): it is for one machine (docs/security.md).
+pub const DEV_SERVER_NAMES: &[&str] = &["localhost"];
+
+/// How long development certificates are valid, days.
+pub const DEV_CERT_DAYS: i64 = 365;
+
+impl DevPki {
+    /// Opens the PKI in `dir`, creating the CA, server and gateway
+    /// certificates if absent, and a certificate for each of `robots` that
+    /// has none yet.
+    pub fn ensure(dir: &Path, robots: &[&str]) -> anyhow::Result<Self> {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        let pki = Self { dir: dir.to_path_buf() };
+        if !pki.ca().exists() || !pki.ca_key().exists() {
+            let key = rcgen::KeyPair::generate()?;
+            let mut params = rcgen::CertificateParams::new(Vec::<String>::new())?;
+            params.distinguished_name.push(rcgen::DnType::CommonName, "vlnav development CA");
+            params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+            params.key_usages = vec![rcgen::KeyUsagePurpose::KeyCertSign, rcgen::KeyUsagePurpose::CrlSign];
+            validity(&mut params);
+            let cert = params.self_signed(&key)?;
+            write_private(&pki.ca_key(), &key.serialize_pem())?;
+            std::fs::write(pki.ca(), cert.pem())?;
+            for stale in ["server.pem", "gateway-client.pem"] {
+                let _ = std::fs::remove_file(dir.join(stale));
+            }
+            if let Ok(entries) = std::fs::read_dir(dir) {
+                for e in entries.flatten() {
+                    if e.file_name().to_string_lossy().starts_with("robot-") {
+                        let _ = std::fs::remove_file(e.path());
+                    }
+                }
+            }
+        }
+        if !pki.server_cert().exists() {
+            let mut sans: Vec<rcgen::SanType> = DEV_SERVER_NAMES
+                .iter()
+                .map(|n| Ok(rcgen::SanType::DnsName((*n).try_into()?)))
+                .collect::<Result<_, rcgen::Error>>()?;
+            sans.push(rcgen::SanType::IpAddress(IpAddr::V4(Ipv4Addr::LOCALHOST)));
+            sans.push(rcgen::SanType::IpAddress(IpAddr::V6(Ipv6Addr::LOCALHOST)));
+            sans.push(rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}server").try_into()?));
+            pki.issue("vlnav server", sans, &pki.server_cert(), &pki.server_key())?;
+        }
+        if !pki.gateway_cert().exists() {
+            let sans = vec![rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}gateway").try_into()?)];
+            pki.issue("vlnav gateway", sans, &pki.gateway_cert(), &pki.gateway_key())?;
+        }
+        for robot in robots {
+            pki.ensure_robot(robot)?;
+        }
+        Ok(pki)
+    }
+
+    /// Issues robot `robot_id`'s certificate unless it exists.
+    pub fn ensure_robot(&self, robot_id: &str) -> anyhow::Result<()> {
+        if robot_id.is_empty() || !robot_id.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
+            anyhow::bail!("robot id {robot_id:?}: use letters, digits, '-', '_' or '.' for a certificate identity");
+        }
+        if !self.robot_cert(robot_id).exists() {
+            let sans = vec![rcgen::SanType::URI(robot_identity(robot_id).try_into()?)];
+            self.issue(
+                &format!("vlnav robot {robot_id}"),
+                sans,
+                &self.robot_cert(robot_id),
+                &self.robot_key(robot_id),
+            )?;
+        }
+        Ok(())
+    }
+
+    fn issue(&self, name: &str, sans: Vec<rcgen::SanType>, cert_path: &Path, key_path: &Path) -> anyhow::Result<()> {
+        let ca_key = rcgen::KeyPair::from_pem(&std::fs::read_to_string(self.ca_key())?)?;
+        let issuer = rcgen::Issuer::from_ca_cert_pem(&std::fs::read_to_string(self.ca())?, ca_key)?;
+        let key = rcgen::KeyPair::generate()?;
+        let mut params = rcgen::CertificateParams::new(Vec::<String>::new())?;
+        params.distinguished_name.push(rcgen::DnType::CommonName, name);
+        params.subject_alt_names = sans;
+        params.key_usages = vec![rcgen::KeyUsagePurpose::DigitalSignature];
+        params.extended_key_usages =
+            vec![rcgen::ExtendedKeyUsagePurpose::ServerAuth, rcgen::ExtendedKeyUsagePurpose::ClientAuth];
+        validity(&mut params);
+        let cert = params.signed_by(&key, &issuer)?;
+        write_private(key_path, &key.serialize_pem())?;
+        std::fs::write(cert_path, cert.pem())?;
+        Ok(())
+    }
+
+    pub fn ca(&self) -> PathBuf {
+        self.dir.join("ca.pem")
+    }
+    pub fn ca_key(&self) -> PathBuf {
+        self.dir.join("ca-key.pem")
+    }
+    pub fn server_cert(&self) -> PathBuf {
+        self.dir.join("server.pem")
+    }
+    pub fn server_key(&self) -> PathBuf {
+        self.dir.join("server-key.pem")
+    }
+    pub fn gateway_cert(&self) -> PathBuf {
+        self.dir.join("gateway-client.pem")
+    }
+    pub fn gateway_key(&self) -> PathBuf {
+        self.dir.join("gateway-client-key.pem")
+    }
+    pub fn robot_cert(&self, robot_id: &str) -> PathBuf {
+        self.dir.join(format!("robot-{robot_id}.pem"))
+    }
+    pub fn robot_key(&self, robot_id: &str) -> PathBuf {
+        self.dir.join(format!("robot-{robot_id}-key.pem"))
+    }
+
+    /// A server's TLS: this PKI's server certificate, callers verified against its CA.
+    pub fn server_args(&self) -> ServerTlsArgs {
+        ServerTlsArgs {
+            tls_cert: Some(self.server_cert()),
+            tls_key: Some(self.server_key()),
+            tls_client_ca: Some(self.ca()),
+        }
+    }
+
+    /// A client trusting this PKI's CA, presenting `identity` (certificate, key) if given.
+    pub fn client_args(&self, identity: Option<(PathBuf, PathBuf)>) -> ClientTlsArgs {
+        let (cert, key) = identity.unzip();
+        ClientTlsArgs { tls_ca: Some(self.ca()), tls_client_cert: cert, tls_client_key: key }
+    }
+}
+
+fn validity(params: &mut rcgen::CertificateParams) {
+    let now = time::OffsetDateTime::now_utc();
+    params.not_before = now - time::Duration::hours(1);
+    params.not_after = now + time::Duration::days(DEV_CERT_DAYS);
+}
+
+fn write_private(path: &Path, text: &str) -> anyhow::Result<()> {
+    #[cfg(unix)]
+    {
+        use std::io::Write as _;
+        use std::os::unix::fs::OpenOptionsExt as _;
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .mode(0o600)
+            .open(path)
+            .with_context(|| format!("cannot write {}", path.display()))?;
+        f.write_all(text.as_bytes())?;
+        Ok(())
+    }
+    #[cfg(not(unix))]
+    {
+        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+    }
+}
+
+/// Writes a secret (a token) readable by its owner only.
+pub fn write_secret(path: &Path, text: &str) -> anyhow::Result<()> {
+    write_private(path, text)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_dev_pki_names_each_robot_in_its_own_certificate_and_is_reused() {
+        let dir = tempfile::tempdir().unwrap();
+        let pki = DevPki::ensure(dir.path(), &["husky-1"]).unwrap();
+        let pem = std::fs::read_to_string(pki.robot_cert("husky-1")).unwrap();
+        let der = pem_der(&pem);
+        assert_eq!(robot_ids_of_peer(&[der]), vec!["husky-1".to_string()]);
+        let server = pem_der(&std::fs::read_to_string(pki.server_cert()).unwrap());
+        assert!(robot_ids_of_peer(&[server]).is_empty(), "the server certificate is no robot");
+        let ca_before = std::fs::read(pki.ca()).unwrap();
+        let again = DevPki::ensure(dir.path(), &["husky-1", "husky-2"]).unwrap();
+        assert_eq!(std::fs::read(again.ca()).unwrap(), ca_before, "the CA is reused");
+        assert!(again.robot_cert("husky-2").exists());
+        assert!(DevPki::ensure(dir.path(), &["../etc"]).is_err(), "a robot id is no path");
+    }
+
+    #[test]
+    fn tokens_are_stored_as_hashes() {
+        let t = new_token();
+        assert_eq!(t.len(), 64);
+        assert_ne!(new_token(), t);
+        assert_eq!(token_hash("abc"), "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+    }
+
+    #[test]
+    fn half_given_tls_settings_are_refused_with_the_missing_flag_named() {
+        let only_cert = ServerTlsArgs { tls_cert: Some("c.pem".into()), ..Default::default() };
+        assert!(only_cert.load(false).unwrap_err().to_string().contains("--tls-key"));
+        let ca_only = ServerTlsArgs { tls_client_ca: Some("ca.pem".into()), ..Default::default() };
+        assert!(ca_only.load(false).unwrap_err().to_string().contains("--tls-cert"));
+        let cert_no_ca =
+            ClientTlsArgs { tls_client_cert: Some("c".into()), tls_client_key: Some("k".into()), tls_ca: None };
+        assert!(cert_no_ca.load().unwrap_err().to_string().contains("--tls-ca"));
+    }
+
+    fn pem_der(pem: &str) -> Vec<u8> {
+        let (_, p) = x509_parser::pem::parse_x509_pem(pem.as_bytes()).unwrap();
+        p.contents
+    }
+}
