@@ -23,7 +23,7 @@ use vlnav_runtime::CancellationToken;
 use vlnav_sim::{Simulator, Twist, load_scenario};
 
 use crate::convert::{self, FrameMeta, RobotDescription};
-use crate::safety::{Backoff, Governor, Limits, Verdict};
+use crate::safety::{Backoff, CommandGate, Governor, Limits, Verdict};
 use crate::{EdgeOptions, Hooks, StepRecord};
 
 /// Why a session ended.
@@ -135,26 +135,48 @@ impl StatusReporter {
     }
 }
 
-/// What the latest velocity command said besides its twist: whether the
-/// gateway is idle (no mission running) and for which mission it was.
+/// What the latest admitted velocity command said besides its twist:
+/// whether the gateway is idle (no mission running) and for which mission
+/// it was; and the gate that drops replayed, reordered, stale and
+/// unanswerable commands on this link (docs/security.md).
 #[derive(Clone, Debug)]
 pub(crate) struct LastCommand {
     pub idle: bool,
     pub mission: String,
-}
-
-impl Default for LastCommand {
-    fn default() -> Self {
-        Self { idle: true, mission: String::new() }
-    }
+    gate: CommandGate,
 }
 
 impl LastCommand {
-    /// Hands `v`'s twist to the governor and keeps the rest.
-    pub(crate) fn take(&mut self, gov: &mut Governor, v: pb::VelocityCommand) {
+    pub(crate) fn new(gov: &Governor) -> Self {
+        Self { idle: true, mission: String::new(), gate: CommandGate::new(gov.deadman_timeout()) }
+    }
+
+    /// A frame stamped `stamp` went to the gateway.
+    pub(crate) fn frame_sent(&mut self, stamp: f64) {
+        self.gate.frame_sent(stamp);
+    }
+
+    /// Hands `v`'s twist to the governor and keeps the rest, unless the gate
+    /// drops it; returns whether it was taken.
+    pub(crate) fn take(&mut self, gov: &mut Governor, v: pb::VelocityCommand) -> bool {
+        if let Err(why) = self.gate.admit(v.seq, v.stamp) {
+            let d = self.gate.dropped();
+            tracing::warn!(
+                seq = v.seq,
+                stamp = v.stamp,
+                ?why,
+                duplicate = d.duplicate,
+                out_of_order = d.out_of_order,
+                stale = d.stale,
+                unanswerable = d.unanswerable,
+                "velocity command dropped"
+            );
+            return false;
+        }
         gov.on_command(v.stamp, twist_of(&v));
         self.idle = v.idle;
         self.mission = v.mission_id;
+        true
     }
 }
 
@@ -388,6 +410,7 @@ impl Session<'_> {
         let Session { opts, robot, gov, link, status, hooks, shutdown } = self;
         let (opts, hooks, shutdown) = (*opts, *hooks, *shutdown);
         let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
+        let mut last = LastCommand::new(gov);
         loop {
             if shutdown.is_cancelled() || robot.time_is_up() {
                 return SessionEnd::Finished;
@@ -403,6 +426,7 @@ impl Session<'_> {
                     r = link.send(msg) => if let Err(e) = r { return SessionEnd::Lost(e) },
                 }
             }
+            last.frame_sent(stamp);
             // The one command that answers this frame.
             let deadline = Instant::now() + liveness;
             let answer = loop {
@@ -422,7 +446,7 @@ impl Session<'_> {
                     Ok(_) => {}
                 }
             };
-            gov.on_command(answer.stamp, twist_of(&answer));
+            last.take(gov, answer);
             gov.set_estop(hooks.estop.is_engaged());
             let (out, verdict) = gov.output(stamp);
             if let Some(s) = status.update(stamp, verdict)
@@ -430,9 +454,9 @@ impl Session<'_> {
             {
                 return SessionEnd::Lost(e);
             }
-            observe(hooks, robot, out, verdict, gov, answer.idle, answer.mission_id.clone());
+            observe(hooks, robot, out, verdict, gov, last.idle, last.mission.clone());
             robot.step(out);
-            if answer.idle {
+            if last.idle {
                 match &hooks.idle_gate {
                     Some(gate) if !gate.is_open() => tokio::select! {
                         _ = shutdown.cancelled() => return SessionEnd::Finished,
@@ -454,7 +478,7 @@ impl Session<'_> {
         let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
         let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-        let mut last = LastCommand::default();
+        let mut last = LastCommand::new(gov);
         // The first frame goes out at once; then one per tick, after stepping.
         let mut first = true;
         loop {
@@ -462,7 +486,7 @@ impl Session<'_> {
                 _ = shutdown.cancelled() => return SessionEnd::Finished,
                 m = link.recv() => match m {
                     Err(e) => return SessionEnd::Lost(e),
-                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => last.take(gov, v),
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => { last.take(gov, v); }
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
                     Ok(_) => {}
                 },
@@ -484,9 +508,11 @@ impl Session<'_> {
                         return SessionEnd::Finished;
                     }
                     let (frame, odo, _, _) = robot.capture();
+                    let stamp = frame.frame.as_ref().map(|f| f.stamp);
                     for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
                         if let Err(e) = link.offer(msg) { return SessionEnd::Lost(e); }
                     }
+                    if let Some(stamp) = stamp { last.frame_sent(stamp); }
                 }
             }
         }

@@ -403,14 +403,14 @@ async fn ros_session(
     let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
     let mut tick = tokio::time::interval(Duration::from_secs_f64(1.0 / opts.control_rate_hz));
     tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-    let mut last = LastCommand::default();
+    let mut last = LastCommand::new(gov);
     let mut seq = 0u64;
     loop {
         tokio::select! {
             _ = shutdown.cancelled() => { robot.publish(Twist::ZERO); return SessionEnd::Finished; }
             m = link.recv() => match m {
                 Err(e) => return SessionEnd::Lost(e),
-                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => last.take(gov, v),
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => { last.take(gov, v); }
                 Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => {
                     tracing::warn!("ResetOdometry is not supported by the ros1 driver; odometry goals stay in the robot's odom frame");
                 }
@@ -431,9 +431,11 @@ async fn ros_session(
                 };
                 seq += 1;
                 let odo = pb::OdometryUpdate { stamp: f.stamp, pose: Some(pose_to_proto(&odom_pose)), twist: Some(convert::twist(&odom_twist)) };
+                let stamp = frame.stamp;
                 for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(pb::SensorFrame { frame: Some(frame), truth: None }))] {
                     if let Err(e) = link.offer(msg) { return SessionEnd::Lost(e); }
                 }
+                last.frame_sent(stamp);
             },
             _ = tick.tick() => {
                 if link.last_heard().elapsed() > liveness {

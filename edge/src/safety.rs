@@ -35,6 +35,91 @@ impl Verdict {
     }
 }
 
+/// Why the edge agent dropped a velocity command (docs/security.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dropped {
+    /// The same sequence number as one already taken: a replay.
+    Duplicate,
+    /// A lower sequence number than one already taken: reordered or replayed.
+    OutOfOrder,
+    /// Its stamp is further behind the newest frame sent than the deadman window.
+    Stale,
+    /// Its stamp is newer than any frame this agent has sent: it answers
+    /// nothing this robot saw.
+    Unanswerable,
+}
+
+/// How many commands were dropped, by reason.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DroppedCounts {
+    pub duplicate: u64,
+    pub out_of_order: u64,
+    pub stale: u64,
+    pub unanswerable: u64,
+}
+
+impl DroppedCounts {
+    pub fn total(&self) -> u64 {
+        self.duplicate + self.out_of_order + self.stale + self.unanswerable
+    }
+}
+
+/// Admits a velocity command only if its sequence number is above every one
+/// admitted on this link, it answers a frame this agent has sent, and it is
+/// within the deadman window of the newest frame (sensor time). Pure logic;
+/// one per link (a new link's gateway numbers afresh).
+#[derive(Clone, Debug)]
+pub struct CommandGate {
+    deadman_timeout: f64,
+    last_seq: Option<u64>,
+    newest_frame: Option<f64>,
+    dropped: DroppedCounts,
+}
+
+impl CommandGate {
+    pub fn new(deadman_timeout_s: f64) -> Self {
+        Self {
+            deadman_timeout: deadman_timeout_s.max(0.0),
+            last_seq: None,
+            newest_frame: None,
+            dropped: Default::default(),
+        }
+    }
+
+    /// A frame stamped `stamp` went to the gateway.
+    pub fn frame_sent(&mut self, stamp: f64) {
+        if stamp.is_finite() && self.newest_frame.is_none_or(|s| stamp > s) {
+            self.newest_frame = Some(stamp);
+        }
+    }
+
+    /// Whether the command numbered `seq`, answering the frame stamped
+    /// `stamp`, may drive the robot; counts it when not.
+    pub fn admit(&mut self, seq: u64, stamp: f64) -> Result<(), Dropped> {
+        let verdict = match (self.last_seq, self.newest_frame) {
+            (Some(last), _) if seq == last => Err(Dropped::Duplicate),
+            (Some(last), _) if seq < last => Err(Dropped::OutOfOrder),
+            _ if !stamp.is_finite() => Err(Dropped::Unanswerable),
+            (_, None) => Err(Dropped::Unanswerable),
+            (_, Some(newest)) if stamp > newest + 1e-9 => Err(Dropped::Unanswerable),
+            (_, Some(newest)) if newest - stamp > self.deadman_timeout + 1e-9 => Err(Dropped::Stale),
+            _ => Ok(()),
+        };
+        match verdict {
+            Ok(()) => self.last_seq = Some(seq),
+            Err(Dropped::Duplicate) => self.dropped.duplicate += 1,
+            Err(Dropped::OutOfOrder) => self.dropped.out_of_order += 1,
+            Err(Dropped::Stale) => self.dropped.stale += 1,
+            Err(Dropped::Unanswerable) => self.dropped.unanswerable += 1,
+        }
+        verdict
+    }
+
+    pub fn dropped(&self) -> DroppedCounts {
+        self.dropped
+    }
+}
+
 /// Turns (possibly stale, possibly wild) velocity commands into what the
 /// robot may do at sensor time `now`.
 #[derive(Clone, Debug)]
@@ -274,5 +359,48 @@ mod tests {
         assert_eq!(ms, vec![100, 200, 400, 700, 700]);
         b.reset();
         assert_eq!(b.next_delay(), Duration::from_millis(100));
+    }
+
+    #[test]
+    fn replayed_reordered_stale_and_unanswerable_commands_are_dropped_and_counted() {
+        let mut gate = CommandGate::new(0.3);
+        assert_eq!(gate.admit(1, 0.0), Err(Dropped::Unanswerable), "no frame sent yet");
+        gate.frame_sent(0.1);
+        assert_eq!(gate.admit(1, 0.1), Ok(()));
+        assert_eq!(gate.admit(1, 0.1), Err(Dropped::Duplicate));
+        gate.frame_sent(0.2);
+        assert_eq!(gate.admit(3, 0.2), Ok(()));
+        assert_eq!(gate.admit(2, 0.1), Err(Dropped::OutOfOrder));
+        assert_eq!(gate.admit(4, 0.5), Err(Dropped::Unanswerable), "answers a frame never sent");
+        gate.frame_sent(1.0);
+        assert_eq!(gate.admit(5, 0.6), Err(Dropped::Stale));
+        assert_eq!(gate.admit(6, f64::NAN), Err(Dropped::Unanswerable));
+        assert_eq!(gate.admit(7, 0.9), Ok(()));
+        let d = gate.dropped();
+        assert_eq!((d.duplicate, d.out_of_order, d.stale, d.unanswerable), (1, 1, 1, 3));
+        assert_eq!(d.total(), 6);
+    }
+
+    #[test]
+    fn a_robot_fed_only_replays_stays_stopped() {
+        let mut gate = CommandGate::new(0.3);
+        let mut gov = Governor::new(HUSKY, 0.3);
+        gate.frame_sent(0.0);
+        gate.admit(10, 0.0).unwrap();
+        gov.on_command(0.0, Twist::new(1.0, 0.0));
+        // The attacker replays the one command it captured at every frame.
+        for k in 1..20 {
+            let now = k as f64 * 0.1;
+            gate.frame_sent(now);
+            if gate.admit(10, 0.0).is_ok() {
+                gov.on_command(0.0, Twist::new(1.0, 0.0));
+            }
+            let (out, verdict) = gov.output(now);
+            if now > 0.3 + 1e-9 {
+                assert_eq!(out, Twist::ZERO, "at {now}");
+                assert_eq!(verdict, Verdict::DeadmanTripped);
+            }
+        }
+        assert_eq!(gate.dropped().duplicate, 19);
     }
 }

@@ -104,12 +104,44 @@ async fn lockstep_commands_with_stale_stamps_trip_the_deadman() {
     assert_eq!(records.len(), 20);
     for r in &records {
         assert_eq!(r.applied, Twist::ZERO);
-        assert_eq!(r.verdict, Verdict::DeadmanTripped);
+        // Dropped as stale at the gate: the governor never holds a command.
+        assert!(r.verdict.deadman_tripped(), "{:?}", r.verdict);
     }
     let t = records.last().unwrap().truth.clone().unwrap();
     assert_eq!(t.path_length_m, 0.0);
     let log = log.lock().unwrap();
     assert!(log.statuses.iter().any(|s| s.deadman_tripped && !s.estop), "{:?}", log.statuses);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn replayed_and_reordered_commands_are_dropped_and_the_robot_stops() {
+    let token = CancellationToken::new();
+    // Five honest commands, then the peer replays the fifth (same sequence
+    // number, fresh stamps) and sends older numbers with fresh stamps.
+    let script: common::Script = Arc::new(|_, k, stamp| match k {
+        0..=4 => Reply::Numbered { seq: k as u64 + 1, stamp, linear: 0.5 },
+        k if k % 2 == 0 => Reply::Numbered { seq: 5, stamp, linear: 0.8 },
+        _ => Reply::Numbered { seq: 3, stamp, linear: 0.8 },
+    });
+    let (uri, _log) = start(script, token.clone()).await;
+    let records = run_episode(sim_opts(&uri, true, 2.0), CancellationToken::new()).await.unwrap();
+    token.cancel();
+    assert_eq!(records.len(), 20);
+    assert!(records[1..5].iter().all(|r| matches!(r.verdict, Verdict::Commanded { .. })), "honest commands drive");
+    // From the deadman window (0.3 s) after the last honest command on, the robot is stopped.
+    for r in &records[8..] {
+        assert_eq!(r.applied, Twist::ZERO, "frame {}: {:?}", r.stamp, r.verdict);
+        assert_eq!(r.verdict, Verdict::DeadmanTripped);
+    }
+    // The platform brakes within a few frames (its own deceleration), then stays put.
+    let moved_after: f64 = records[12..]
+        .windows(2)
+        .map(|w| {
+            let (a, b) = (w[0].truth.as_ref().unwrap().pose, w[1].truth.as_ref().unwrap().pose);
+            ((b.x - a.x).powi(2) + (b.y - a.y).powi(2)).sqrt()
+        })
+        .sum();
+    assert!(moved_after < 1e-9, "the robot moved {moved_after} m on replayed commands");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

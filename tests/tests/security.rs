@@ -68,6 +68,11 @@ async fn callers_need_tls_and_a_token_of_the_right_role() {
         "\n[[token]]\nname = \"contractor\"\nrole = \"operator\"\nsha256 = \"{}\"\nexpires_unix = 1000.0\n",
         vlnav_runtime::security::token_hash(expired)
     ));
+    let scoped = "token-of-the-husky-2-operator";
+    rotated.push_str(&format!(
+        "\n[[token]]\nname = \"husky-2-crew\"\nrole = \"operator\"\nsha256 = \"{}\"\nrobots = [\"husky-2\"]\n",
+        vlnav_runtime::security::token_hash(scoped)
+    ));
     std::fs::write(&file, rotated).unwrap();
     tokio::time::sleep(Duration::from_millis(1300)).await;
     let e = grpcurl_with(&t.grpcurl_auth(expired), &["-d", "{}", &addr, LIST]).unwrap_err();
@@ -75,6 +80,16 @@ async fn callers_need_tls_and_a_token_of_the_right_role() {
     let e = grpcurl_with(&viewer, &["-d", "{}", &addr, LIST]).unwrap_err();
     assert!(e.contains("Unauthenticated"), "the revoked viewer token is refused: {e}");
     grpcurl_with(&op, &["-d", "{}", &addr, LIST]).expect("the operator token still works");
+
+    // A token scoped to husky-2 neither commands nor sees husky-1.
+    let crew = t.grpcurl_auth(scoped);
+    let e = grpcurl_with(&crew, &["-d", &submit_body("move 1 m ahead"), &addr, SUBMIT]).unwrap_err();
+    assert!(e.contains("PermissionDenied") && e.contains("husky-2-crew"), "{e}");
+    let body = serde_json::json!({"mission_id": id}).to_string();
+    let e = grpcurl_with(&crew, &["-d", &body, &addr, "vlnav.v1.MissionService/GetMission"]).unwrap_err();
+    assert!(e.contains("PermissionDenied"), "{e}");
+    let listed = grpcurl_with(&crew, &["-d", "{}", &addr, LIST]).expect("a scoped list");
+    assert!(!listed.contains(&id), "another robot's mission is not listed: {listed}");
     let still = t.missions().await.get_mission(GetMissionRequest { mission_id: id }).await;
     assert!(still.is_ok());
     t.stack.shutdown().await.unwrap();

@@ -18,6 +18,8 @@ use vlnav_runtime::{CancellationToken, ServerConfig, ServiceSet};
 pub enum Reply {
     /// A velocity command with this stamp.
     Command { stamp: f64, linear: f64, angular: f64, idle: bool },
+    /// A velocity command with this sequence number (a replay, a reordering).
+    Numbered { seq: u64, stamp: f64, linear: f64 },
     /// No answer.
     Silence,
 }
@@ -90,8 +92,15 @@ impl FleetService for ScriptedGateway {
                         log.lock().unwrap().frames.push((attach_no, f));
                         let reply = script(attach_no, index, stamp);
                         index += 1;
-                        if let Reply::Command { stamp: s, linear, angular, idle } = reply {
-                            seq += 1;
+                        let numbered = match reply {
+                            Reply::Command { stamp: s, linear, angular, idle } => {
+                                seq += 1;
+                                Some((seq, s, linear, angular, idle))
+                            }
+                            Reply::Numbered { seq: n, stamp: s, linear } => Some((n, s, linear, 0.0, false)),
+                            Reply::Silence => None,
+                        };
+                        if let Some((seq, s, linear, angular, idle)) = numbered {
                             log.lock().unwrap().answered.push((stamp, s));
                             let cmd = pb::GatewayCommand {
                                 kind: Some(pb::gateway_command::Kind::Velocity(pb::VelocityCommand {
