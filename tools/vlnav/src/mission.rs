@@ -115,6 +115,27 @@ pub fn summarise(m: &Mission) -> String {
     out
 }
 
+/// A failed call as a person can act on it: an unreachable gateway, or a
+/// plaintext client talking to a TLS gateway, says what to do.
+fn call_error(gateway: &str, s: &tonic::Status) -> anyhow::Error {
+    match s.code() {
+        tonic::Code::Unavailable => {
+            anyhow::anyhow!("cannot reach the gateway at {gateway}: {} (is `vlnav up` running?)", s.message())
+        }
+        tonic::Code::Unknown | tonic::Code::Internal
+            if gateway.starts_with("http://")
+                && ["transport", "h2 protocol"].iter().any(|m| s.message().contains(m)) =>
+        {
+            anyhow::anyhow!(
+                "the gateway at {gateway} does not answer plaintext gRPC ({}); `vlnav up` serves TLS unless started \
+                 with --insecure: use https://",
+                s.message()
+            )
+        }
+        _ => anyhow::anyhow!("{}: {}", s.code(), s.message()),
+    }
+}
+
 /// Submits, prints every event until the mission ends, returns the mission.
 pub async fn run_mission(args: &MissionArgs, out: &mut (impl Write + Send)) -> anyhow::Result<Mission> {
     let security = args.caller.load()?;
@@ -138,7 +159,7 @@ pub async fn run_mission(args: &MissionArgs, out: &mut (impl Write + Send)) -> a
             dry_run: args.dry_run,
         })
         .await
-        .map_err(|s| anyhow::anyhow!("{}: {}", s.code(), s.message()))?
+        .map_err(|s| call_error(&args.gateway, &s))?
         .into_inner();
     writeln!(out, "mission {} ({} planner)", resp.mission_id, resp.planner_backend)?;
     match &resp.outcome {
@@ -164,4 +185,19 @@ pub async fn run_mission(args: &MissionArgs, out: &mut (impl Write + Send)) -> a
     let mission = client.get_mission(GetMissionRequest { mission_id: resp.mission_id }).await?.into_inner();
     writeln!(out, "{}", summarise(&mission))?;
     Ok(mission)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn failed_calls_say_what_to_do() {
+        let down = call_error("https://127.0.0.1:50051", &tonic::Status::unavailable("tcp connect error"));
+        assert!(down.to_string().contains("is `vlnav up` running?"), "{down}");
+        let plain = call_error("http://127.0.0.1:50051", &tonic::Status::internal("h2 protocol error: http2 error"));
+        assert!(plain.to_string().contains("use https://"), "{plain}");
+        let other = call_error("https://x:1", &tonic::Status::permission_denied("needs the operator role"));
+        assert!(other.to_string().contains("needs the operator role"), "{other}");
+    }
 }
