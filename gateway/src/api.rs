@@ -21,7 +21,7 @@ use vlnav_proto::v1::{
     mission_service_server::{MissionService, MissionServiceServer},
     plan_response, submit_mission_request, submit_mission_response,
 };
-use vlnav_runtime::security::{robot_identity, robot_ids_of_peer};
+use vlnav_runtime::security::{robot_identity, robot_ids_of_peer, valid_robot_id};
 use vlnav_runtime::{ServerConfig, ServiceSet};
 
 use crate::auth::{AuthLayer, Caller, TokenStore};
@@ -104,11 +104,6 @@ impl Gateway {
                     FleetServiceServer::new(me.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
                 ),
             )
-    }
-
-    /// Whether callers must present bearer tokens.
-    pub fn authenticates(&self) -> bool {
-        self.auth.enabled()
     }
 
     /// The mission `id`, if `caller` may see it.
@@ -204,19 +199,20 @@ impl Gateway {
             Some(submit_mission_request::Instruction::Text(t)) => t.trim().to_string(),
             _ => String::new(),
         };
+        let now = unix_now();
         let record = Mission {
             mission_id: mission_id.clone(),
             robot_id: robot_id.clone(),
             instruction: text.clone(),
             state: MissionState::Pending as i32,
             dry_run: req.dry_run,
-            created_unix: unix_now(),
+            created_unix: now,
             trace_id,
             submitted_by: caller.name.clone(),
             audit: vec![AuditRecord {
                 action: "submit".into(),
                 caller: caller.name.clone(),
-                unix_time: unix_now(),
+                unix_time: now,
                 detail: String::new(),
             }],
             ..Default::default()
@@ -487,10 +483,6 @@ impl MissionService for Gateway {
 
 fn unix_now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
-}
-
-fn valid_robot_id(id: &str) -> bool {
-    !id.is_empty() && id.len() <= 64 && id.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
 }
 
 fn frame_status(robot: &str, e: &FrameError) -> Status {

@@ -244,10 +244,6 @@ impl AuthLayer {
         Self { tokens }
     }
 
-    pub fn enabled(&self) -> bool {
-        self.tokens.is_some()
-    }
-
     /// Wraps one tonic service.
     pub fn wrap<S>(&self, inner: S) -> Authorized<S> {
         Authorized { inner, tokens: self.tokens.clone() }

@@ -21,6 +21,12 @@ pub fn robot_identity(robot_id: &str) -> String {
     format!("{ROBOT_IDENTITY_PREFIX}{robot_id}")
 }
 
+/// Whether `id` can be a robot id: 1–64 letters, digits, '-', '_' or '.'
+/// (it names the robot in certificates, file names and metrics).
+pub fn valid_robot_id(id: &str) -> bool {
+    !id.is_empty() && id.len() <= 64 && id.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+}
+
 /// TLS of a server. With a certificate and key the server speaks only TLS;
 /// with a client CA as well it asks callers for a certificate that CA
 /// signed (mutual TLS).
@@ -314,8 +320,10 @@ impl DevPki {
 
     /// Issues robot `robot_id`'s certificate unless it exists.
     pub fn ensure_robot(&self, robot_id: &str) -> anyhow::Result<()> {
-        if robot_id.is_empty() || !robot_id.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
-            anyhow::bail!("robot id {robot_id:?}: use letters, digits, '-', '_' or '.' for a certificate identity");
+        if !valid_robot_id(robot_id) {
+            anyhow::bail!(
+                "robot id {robot_id:?}: use 1–64 letters, digits, '-', '_' or '.' for a certificate identity"
+            );
         }
         if !self.robot_cert(robot_id).exists() {
             let sans = vec![rcgen::SanType::URI(robot_identity(robot_id).try_into()?)];
