@@ -156,10 +156,17 @@ impl LastCommand {
         self.gate.frame_sent(stamp);
     }
 
+    /// The gateway announced which mission drives from now on (fleet.proto).
+    pub(crate) fn announce(&mut self, a: &pb::MissionAnnouncement) {
+        tracing::debug!(mission = %a.mission_id, stamp = a.stamp, "mission announced");
+        self.gate.announce(&a.mission_id);
+    }
+
     /// Hands `v`'s twist to the governor and keeps the rest, unless the gate
     /// drops it; returns whether it was taken.
     pub(crate) fn take(&mut self, gov: &mut Governor, v: pb::VelocityCommand) -> bool {
-        if let Err(why) = self.gate.admit(v.seq, v.stamp) {
+        let moves = twist_of(&v) != Twist::ZERO;
+        if let Err(why) = self.gate.admit(v.seq, v.stamp, &v.mission_id, moves) {
             let d = self.gate.dropped();
             tracing::warn!(
                 seq = v.seq,
@@ -169,6 +176,9 @@ impl LastCommand {
                 out_of_order = d.out_of_order,
                 stale = d.stale,
                 unanswerable = d.unanswerable,
+                unknown_mission = d.unknown_mission,
+                mission = %v.mission_id,
+                announced = %self.gate.announced(),
                 "velocity command dropped"
             );
             return false;
@@ -443,6 +453,7 @@ impl Session<'_> {
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => {
                         robot.sim.reset_odometry()
                     }
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Mission(a)) }) => last.announce(&a),
                     Ok(_) => {}
                 }
             };
@@ -488,6 +499,7 @@ impl Session<'_> {
                     Err(e) => return SessionEnd::Lost(e),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => { last.take(gov, v); }
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Mission(a)) }) => last.announce(&a),
                     Ok(_) => {}
                 },
                 _ = tick.tick() => {

@@ -414,6 +414,7 @@ async fn ros_session(
                 Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => {
                     tracing::warn!("ResetOdometry is not supported by the ros1 driver; odometry goals stay in the robot's odom frame");
                 }
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Mission(a)) }) => last.announce(&a),
                 Ok(_) => {}
             },
             Some(f) = robot.frames.recv() => {

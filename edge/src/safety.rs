@@ -47,6 +47,9 @@ pub enum Dropped {
     /// Its stamp is newer than any frame this agent has sent: it answers
     /// nothing this robot saw.
     Unanswerable,
+    /// It names a mission other than the one the gateway announced, or it
+    /// would move the robot while no mission is announced.
+    UnknownMission,
 }
 
 /// How many commands were dropped, by reason.
@@ -56,23 +59,28 @@ pub struct DroppedCounts {
     pub out_of_order: u64,
     pub stale: u64,
     pub unanswerable: u64,
+    pub unknown_mission: u64,
 }
 
 impl DroppedCounts {
     pub fn total(&self) -> u64 {
-        self.duplicate + self.out_of_order + self.stale + self.unanswerable
+        self.duplicate + self.out_of_order + self.stale + self.unanswerable + self.unknown_mission
     }
 }
 
 /// Admits a velocity command only if its sequence number is above every one
-/// admitted on this link, it answers a frame this agent has sent, and it is
-/// within the deadman window of the newest frame (sensor time). Pure logic;
-/// one per link (a new link's gateway numbers afresh).
+/// admitted on this link, it answers a frame this agent has sent, it is
+/// within the deadman window of the newest frame (sensor time), and it
+/// belongs to the mission the gateway announced (a command that moves the
+/// robot needs one). Pure logic; one per link (a new link's gateway numbers
+/// and announces afresh).
 #[derive(Clone, Debug)]
 pub struct CommandGate {
     deadman_timeout: f64,
     last_seq: Option<u64>,
     newest_frame: Option<f64>,
+    /// The announced mission; empty when none is.
+    announced: String,
     dropped: DroppedCounts,
 }
 
@@ -82,8 +90,20 @@ impl CommandGate {
             deadman_timeout: deadman_timeout_s.max(0.0),
             last_seq: None,
             newest_frame: None,
+            announced: String::new(),
             dropped: Default::default(),
         }
+    }
+
+    /// The gateway announced that `mission_id` (empty: none) drives from now on.
+    pub fn announce(&mut self, mission_id: &str) {
+        self.announced.clear();
+        self.announced.push_str(mission_id);
+    }
+
+    /// The announced mission; empty when none is.
+    pub fn announced(&self) -> &str {
+        &self.announced
     }
 
     /// A frame stamped `stamp` went to the gateway.
@@ -94,8 +114,10 @@ impl CommandGate {
     }
 
     /// Whether the command numbered `seq`, answering the frame stamped
-    /// `stamp`, may drive the robot; counts it when not.
-    pub fn admit(&mut self, seq: u64, stamp: f64) -> Result<(), Dropped> {
+    /// `stamp`, sent for `mission_id` (empty: none) and moving the robot
+    /// when `moves`, may drive it; counts it when not.
+    pub fn admit(&mut self, seq: u64, stamp: f64, mission_id: &str, moves: bool) -> Result<(), Dropped> {
+        let unknown_mission = mission_id != self.announced || (moves && mission_id.is_empty());
         let verdict = match (self.last_seq, self.newest_frame) {
             (Some(last), _) if seq == last => Err(Dropped::Duplicate),
             (Some(last), _) if seq < last => Err(Dropped::OutOfOrder),
@@ -103,6 +125,7 @@ impl CommandGate {
             (_, None) => Err(Dropped::Unanswerable),
             (_, Some(newest)) if stamp > newest + 1e-9 => Err(Dropped::Unanswerable),
             (_, Some(newest)) if newest - stamp > self.deadman_timeout + 1e-9 => Err(Dropped::Stale),
+            _ if unknown_mission => Err(Dropped::UnknownMission),
             _ => Ok(()),
         };
         match verdict {
@@ -111,6 +134,7 @@ impl CommandGate {
             Err(Dropped::OutOfOrder) => self.dropped.out_of_order += 1,
             Err(Dropped::Stale) => self.dropped.stale += 1,
             Err(Dropped::Unanswerable) => self.dropped.unanswerable += 1,
+            Err(Dropped::UnknownMission) => self.dropped.unknown_mission += 1,
         }
         verdict
     }
@@ -364,18 +388,19 @@ mod tests {
     #[test]
     fn replayed_reordered_stale_and_unanswerable_commands_are_dropped_and_counted() {
         let mut gate = CommandGate::new(0.3);
-        assert_eq!(gate.admit(1, 0.0), Err(Dropped::Unanswerable), "no frame sent yet");
+        gate.announce("m-1");
+        assert_eq!(gate.admit(1, 0.0, "m-1", true), Err(Dropped::Unanswerable), "no frame sent yet");
         gate.frame_sent(0.1);
-        assert_eq!(gate.admit(1, 0.1), Ok(()));
-        assert_eq!(gate.admit(1, 0.1), Err(Dropped::Duplicate));
+        assert_eq!(gate.admit(1, 0.1, "m-1", true), Ok(()));
+        assert_eq!(gate.admit(1, 0.1, "m-1", true), Err(Dropped::Duplicate));
         gate.frame_sent(0.2);
-        assert_eq!(gate.admit(3, 0.2), Ok(()));
-        assert_eq!(gate.admit(2, 0.1), Err(Dropped::OutOfOrder));
-        assert_eq!(gate.admit(4, 0.5), Err(Dropped::Unanswerable), "answers a frame never sent");
+        assert_eq!(gate.admit(3, 0.2, "m-1", true), Ok(()));
+        assert_eq!(gate.admit(2, 0.1, "m-1", true), Err(Dropped::OutOfOrder));
+        assert_eq!(gate.admit(4, 0.5, "m-1", true), Err(Dropped::Unanswerable), "answers a frame never sent");
         gate.frame_sent(1.0);
-        assert_eq!(gate.admit(5, 0.6), Err(Dropped::Stale));
-        assert_eq!(gate.admit(6, f64::NAN), Err(Dropped::Unanswerable));
-        assert_eq!(gate.admit(7, 0.9), Ok(()));
+        assert_eq!(gate.admit(5, 0.6, "m-1", true), Err(Dropped::Stale));
+        assert_eq!(gate.admit(6, f64::NAN, "m-1", true), Err(Dropped::Unanswerable));
+        assert_eq!(gate.admit(7, 0.9, "m-1", true), Ok(()));
         let d = gate.dropped();
         assert_eq!((d.duplicate, d.out_of_order, d.stale, d.unanswerable), (1, 1, 1, 3));
         assert_eq!(d.total(), 6);
@@ -385,14 +410,15 @@ mod tests {
     fn a_robot_fed_only_replays_stays_stopped() {
         let mut gate = CommandGate::new(0.3);
         let mut gov = Governor::new(HUSKY, 0.3);
+        gate.announce("m-1");
         gate.frame_sent(0.0);
-        gate.admit(10, 0.0).unwrap();
+        gate.admit(10, 0.0, "m-1", true).unwrap();
         gov.on_command(0.0, Twist::new(1.0, 0.0));
         // The attacker replays the one command it captured at every frame.
         for k in 1..20 {
             let now = k as f64 * 0.1;
             gate.frame_sent(now);
-            if gate.admit(10, 0.0).is_ok() {
+            if gate.admit(10, 0.0, "m-1", true).is_ok() {
                 gov.on_command(0.0, Twist::new(1.0, 0.0));
             }
             let (out, verdict) = gov.output(now);
@@ -402,5 +428,26 @@ mod tests {
             }
         }
         assert_eq!(gate.dropped().duplicate, 19);
+    }
+
+    #[test]
+    fn commands_outside_the_announced_mission_are_dropped_and_counted() {
+        let mut gate = CommandGate::new(0.3);
+        gate.frame_sent(0.1);
+        // Nothing announced: an idle stop passes, anything that moves does not.
+        assert_eq!(gate.admit(1, 0.1, "", false), Ok(()));
+        assert_eq!(gate.admit(2, 0.1, "", true), Err(Dropped::UnknownMission));
+        assert_eq!(gate.admit(3, 0.1, "m-1", true), Err(Dropped::UnknownMission), "never announced");
+        gate.announce("m-1");
+        assert_eq!(gate.announced(), "m-1");
+        assert_eq!(gate.admit(4, 0.1, "m-1", true), Ok(()));
+        assert_eq!(gate.admit(5, 0.1, "m-2", true), Err(Dropped::UnknownMission), "another mission");
+        assert_eq!(gate.admit(6, 0.1, "", false), Err(Dropped::UnknownMission), "the mission has not ended");
+        // The mission ends: its own commands no longer drive.
+        gate.announce("");
+        assert_eq!(gate.admit(7, 0.1, "m-1", true), Err(Dropped::UnknownMission));
+        assert_eq!(gate.admit(8, 0.1, "", false), Ok(()));
+        assert_eq!(gate.dropped().unknown_mission, 5);
+        assert_eq!(gate.dropped().total(), 5);
     }
 }

@@ -145,6 +145,30 @@ async fn replayed_and_reordered_commands_are_dropped_and_the_robot_stops() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn commands_for_a_mission_never_announced_are_dropped_and_the_robot_stays_stopped() {
+    let token = CancellationToken::new();
+    // In order and fresh, but for a mission the gateway never announced, or
+    // for none at all while moving.
+    let script: common::Script = Arc::new(|_, k, _| {
+        if k % 2 == 0 {
+            Reply::Unannounced { mission: "m-rogue", linear: 0.8 }
+        } else {
+            Reply::Unannounced { mission: "", linear: 0.8 }
+        }
+    });
+    let (uri, log) = start(script, token.clone()).await;
+    let records = run_episode(sim_opts(&uri, true, 2.0), CancellationToken::new()).await.unwrap();
+    token.cancel();
+    assert_eq!(records.len(), 20);
+    assert_eq!(log.lock().unwrap().answered.len(), 20, "every frame was answered");
+    for r in &records {
+        assert_eq!(r.applied, Twist::ZERO, "frame {}: {:?}", r.stamp, r.verdict);
+        assert!(r.verdict.deadman_tripped(), "{:?}", r.verdict);
+    }
+    assert_eq!(records.last().unwrap().truth.as_ref().unwrap().path_length_m, 0.0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn commands_above_the_limits_are_clamped_and_ramped() {
     let token = CancellationToken::new();
     let (uri, _log) = start(answer_all(5.0, -9.0), token.clone()).await;

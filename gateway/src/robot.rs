@@ -9,8 +9,8 @@ use tokio::sync::{mpsc, oneshot};
 use tonic::Status;
 use tracing::Instrument;
 use vlnav_proto::v1::{
-    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, OdometryUpdate, RobotInfo, SensorFrame, Twist2D,
-    VelocityCommand, gateway_command,
+    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, MissionAnnouncement, OdometryUpdate, RobotInfo,
+    SensorFrame, Twist2D, VelocityCommand, gateway_command,
 };
 use vlnav_runtime::actor::Mailbox;
 
@@ -106,6 +106,7 @@ impl Fleet {
             run: None,
             last_stamp: None,
             command_seq: 0,
+            announced: String::new(),
         };
         tokio::spawn(actor.run(rx));
         robots.insert(robot_id.to_string(), (mailbox.clone(), info));
@@ -223,6 +224,9 @@ struct RobotActor {
     run: Option<Box<MissionRun>>,
     last_stamp: Option<f64>,
     command_seq: u64,
+    /// The mission last announced on the current connection (empty: none);
+    /// the edge agent drives only for the announced one (fleet.proto).
+    announced: String,
 }
 
 impl RobotActor {
@@ -256,6 +260,7 @@ impl RobotActor {
                 }
                 self.conn = Some((conn, outbound));
                 self.last_stamp = None;
+                self.announced.clear();
                 self.update(|i| {
                     i.connected = true;
                     i.driver = hello.driver.clone();
@@ -392,6 +397,15 @@ impl RobotActor {
             None => (Twist2D::default(), false, tracing::Span::none(), String::new()),
         };
         self.command_seq += 1;
+        let announcement = (mission_id != self.announced).then(|| {
+            self.announced = mission_id.clone();
+            GatewayCommand {
+                kind: Some(gateway_command::Kind::Mission(MissionAnnouncement {
+                    mission_id: mission_id.clone(),
+                    stamp,
+                })),
+            }
+        });
         let cmd = GatewayCommand {
             kind: Some(gateway_command::Kind::Velocity(VelocityCommand {
                 seq: self.command_seq,
@@ -402,6 +416,13 @@ impl RobotActor {
             })),
         };
         if let Some((_, tx)) = &self.conn {
+            // Same stream, so the edge agent reads it before the command it governs.
+            if let Some(a) = announcement
+                && tx.send(Ok(a)).await.is_err()
+            {
+                tracing::warn!(robot = %self.robot_id, "the edge agent went away before the mission was announced");
+                return;
+            }
             let forward = tracing::info_span!(parent: &span, "edge-forward", robot.id = %self.robot_id);
             if span.is_none() {
                 let _ = tx.send(Ok(cmd)).await;

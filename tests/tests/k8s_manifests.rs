@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
+use vlnav::credentials::{K8S_COMPONENTS, K8sCredentialsArgs, dns_names, tls_secret_name};
 use vlnav_runtime::ports;
 
 /// The Kubernetes version the manifests are validated against: the oldest
@@ -103,12 +104,27 @@ fn base_and_every_overlay_render_and_validate_strictly() {
     let mut dirs = vec![root().join("k8s/base")];
     dirs.extend(overlays());
     for dir in dirs {
-        let yaml = render(&dir);
+        // cert-manager's kinds have no schema here (no registry ships its
+        // CRDs): they are set aside and checked field by field in
+        // cert_manager_issues_what_the_base_mounts; everything else must pass.
+        let (cert_manager, built_in): (Vec<Value>, Vec<Value>) =
+            objects(&render(&dir)).into_iter().partition(is_cert_manager);
+        let yaml = to_yaml(&built_in);
         let report = validate(&yaml, true).unwrap_or_else(|r| panic!("{} failed validation:\n{r}", dir.display()));
         // Every rendered resource was checked against a schema, none skipped.
         let passed = report.lines().filter(|l| l.contains(" passed for resource ")).count();
-        assert_eq!(passed, objects(&yaml).len(), "{}:\n{report}", dir.display());
+        assert_eq!(passed, built_in.len(), "{}:\n{report}", dir.display());
+        assert_eq!(!cert_manager.is_empty(), dir.ends_with("cert-manager"), "{}", dir.display());
     }
+}
+
+fn is_cert_manager(obj: &Value) -> bool {
+    obj["apiVersion"].as_str().is_some_and(|v| v.starts_with("cert-manager.io/"))
+}
+
+/// Objects back to multi-document YAML (JSON is YAML).
+fn to_yaml(objs: &[Value]) -> String {
+    objs.iter().map(|o| format!("---\n{o}\n")).collect()
 }
 
 #[test]
@@ -200,9 +216,17 @@ fn check_rules(label: &str, objs: &[Value]) {
         let d = deployments.iter().find(|d| name(d) == svc).unwrap_or_else(|| panic!("{label}: no Deployment {svc}"));
         let c = &get(d, "spec.template.spec")["containers"][0];
         assert_eq!(c["ports"][0]["containerPort"], port, "{label}/{svc}: container port");
+        assert!(
+            c["ports"].as_array().unwrap().iter().any(|p| p["name"] == "health" && p["containerPort"] == HEALTH_PORT),
+            "{label}/{svc}: the plaintext health port"
+        );
         for probe in ["startupProbe", "readinessProbe", "livenessProbe"] {
-            assert_eq!(c[probe]["grpc"]["port"], port, "{label}/{svc}: {probe} must be a native gRPC probe on {port}");
+            assert_eq!(
+                c[probe]["grpc"]["port"], HEALTH_PORT,
+                "{label}/{svc}: {probe} must be a native gRPC probe on the health port (probes speak no TLS)"
+            );
         }
+        assert_mounts_tls(label, d, svc);
         let env: BTreeMap<&str, &str> = c["env"]
             .as_array()
             .unwrap()
@@ -254,9 +278,44 @@ fn check_rules(label: &str, objs: &[Value]) {
         }
     }
 
-    // Telemetry wiring.
+    // TLS on every link: the servers' own certificate and client CA, the
+    // gateway's client identity, the exporters', the plaintext health port;
+    // nothing insecure (docs/security.md).
     let config = of_kind(objs, "ConfigMap").into_iter().find(|c| name(c) == "vlnav-config").expect("vlnav-config");
-    assert_eq!(config["data"]["OTEL_EXPORTER_OTLP_ENDPOINT"], "http://otel-collector:4317");
+    assert!(config["data"]["VLNAV_INSECURE"].is_null(), "{label}: VLNAV_INSECURE must not be set");
+    for (key, file) in [
+        ("VLNAV_TLS_CERT", "tls.crt"),
+        ("VLNAV_TLS_KEY", "tls.key"),
+        ("VLNAV_TLS_CLIENT_CA", "ca.crt"),
+        ("VLNAV_TLS_CA", "ca.crt"),
+        ("VLNAV_TLS_CLIENT_CERT", "tls.crt"),
+        ("VLNAV_TLS_CLIENT_KEY", "tls.key"),
+        ("OTEL_EXPORTER_OTLP_CERTIFICATE", "ca.crt"),
+        ("OTEL_EXPORTER_OTLP_CLIENT_CERTIFICATE", "tls.crt"),
+        ("OTEL_EXPORTER_OTLP_CLIENT_KEY", "tls.key"),
+    ] {
+        assert_eq!(config["data"][key], format!("{TLS_DIR}/{file}"), "{label}: {key}");
+    }
+    assert_eq!(config["data"]["VLNAV_HEALTH_LISTEN"], format!("0.0.0.0:{HEALTH_PORT}"), "{label}");
+    let gateway = deployments.iter().find(|d| name(d) == "gateway").unwrap();
+    let gw_env = &get(gateway, "spec.template.spec")["containers"][0]["env"];
+    let tokens = gw_env.as_array().unwrap().iter().find(|e| e["name"] == "VLNAV_TOKENS_FILE");
+    assert_eq!(tokens.map(|e| &e["value"]), Some(&Value::from("/etc/vlnav/tokens/tokens.toml")), "{label}: tokens");
+    assert!(
+        volumes(gateway).iter().any(|v| v["secret"]["secretName"] == "vlnav-gateway-tokens"),
+        "{label}: the gateway mounts its token Secret"
+    );
+    for telemetry in ["otel-collector", "jaeger"] {
+        let d = deployments.iter().find(|d| name(d) == telemetry).unwrap();
+        assert_mounts_tls(label, d, telemetry);
+    }
+    let collector = of_kind(objs, "ConfigMap").into_iter().find(|c| name(c) == "otel-collector").unwrap();
+    let conf = collector["data"]["collector.yaml"].as_str().unwrap();
+    assert!(!conf.contains("insecure"), "{label}: the collector's links are TLS");
+    assert_eq!(conf.matches("client_ca_file: /etc/vlnav/tls/ca.crt").count(), 2, "{label}: mutual TLS receivers");
+
+    // Telemetry wiring.
+    assert_eq!(config["data"]["OTEL_EXPORTER_OTLP_ENDPOINT"], "https://otel-collector:4317");
     // The gateway balances over every replica of a scaled service (a headless
     // Service's DNS answer); a stateful one is one replica behind its Service.
     for (svc, port) in vlnav_ports() {
@@ -275,7 +334,7 @@ fn check_rules(label: &str, objs: &[Value]) {
                 );
                 format!("dns:///{svc}-replicas:{port}")
             } else {
-                format!("http://{svc}:{port}")
+                format!("https://{svc}:{port}")
             };
             assert_eq!(config["data"][&key], expected, "{label}: {key}");
         }
@@ -283,6 +342,35 @@ fn check_rules(label: &str, objs: &[Value]) {
     for telemetry in ["otel-collector", "jaeger"] {
         assert!(deployments.iter().any(|d| name(d) == telemetry), "{label}: no {telemetry}");
     }
+}
+
+/// Kubernetes' gRPC probes speak no TLS: every server answers health, and
+/// only health, in plaintext here (VLNAV_HEALTH_LISTEN).
+const HEALTH_PORT: u16 = 8090;
+/// Where each pod mounts its component's certificate Secret.
+const TLS_DIR: &str = "/etc/vlnav/tls";
+
+fn volumes(d: &Value) -> Vec<&Value> {
+    get(d, "spec.template.spec")["volumes"].as_array().map(|v| v.iter().collect()).unwrap_or_default()
+}
+
+/// `d`'s first container mounts Secret vlnav-<component>-tls read-only at TLS_DIR.
+fn assert_mounts_tls(label: &str, d: &Value, component: &str) {
+    let secret = tls_secret_name(component);
+    let volume = volumes(d)
+        .into_iter()
+        .find(|v| v["secret"]["secretName"] == secret.as_str())
+        .unwrap_or_else(|| panic!("{label}/{}: no volume from Secret {secret}", name(d)));
+    let c = &get(d, "spec.template.spec")["containers"][0];
+    assert!(
+        c["volumeMounts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|m| m["name"] == volume["name"] && m["mountPath"] == TLS_DIR && m["readOnly"] == true),
+        "{label}/{}: {secret} must be mounted read-only at {TLS_DIR}",
+        name(d)
+    );
 }
 
 fn gpu_limit(d: &Value) -> Option<&str> {
@@ -360,4 +448,141 @@ fn dockerfiles_pass_hadolint() {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+#[test]
+fn cert_manager_issues_what_the_base_mounts() {
+    let objs = objects(&render(&root().join("k8s/overlays/cert-manager")));
+    let issuers: BTreeSet<&str> = objs.iter().filter(|o| o["kind"] == "Issuer").map(name).collect();
+    let certs: BTreeMap<&str, &Value> = objs
+        .iter()
+        .filter(|o| o["kind"] == "Certificate")
+        .map(|c| (get(c, "spec.secretName").as_str().unwrap(), c))
+        .collect();
+    // The CA: self-signed root, then a CA issuer over its Secret.
+    let ca = certs.get("vlnav-ca").expect("a CA certificate");
+    assert_eq!(ca["spec"]["isCA"], true);
+    assert!(issuers.contains(get(ca, "spec.issuerRef.name").as_str().unwrap()));
+    let ca_issuer = objs.iter().find(|o| o["kind"] == "Issuer" && o["spec"]["ca"]["secretName"] == "vlnav-ca");
+    let ca_issuer = name(ca_issuer.expect("an Issuer signing with the CA"));
+    for (component, _) in K8S_COMPONENTS {
+        let secret = tls_secret_name(component);
+        let c = certs.get(secret.as_str()).unwrap_or_else(|| panic!("no Certificate for {secret}"));
+        assert_eq!(get(c, "spec.issuerRef.name"), ca_issuer, "{component}: signed by the CA");
+        for usage in ["server auth", "client auth"] {
+            assert!(get(c, "spec.usages").as_array().unwrap().iter().any(|u| u == usage), "{component}: {usage}");
+        }
+        assert_eq!(get(c, "spec.uris")[0], format!("spiffe://vlnav/service/{component}"));
+        let names: BTreeSet<String> = get(c, "spec.dnsNames")
+            .as_array()
+            .unwrap()
+            .iter()
+            .chain(c["spec"]["ipAddresses"].as_array().into_iter().flatten())
+            .map(|v| v.as_str().unwrap().to_string())
+            .collect();
+        let expected: BTreeSet<String> = dns_names(component, "vlnav", &[]).unwrap().into_iter().collect();
+        assert_eq!(names, expected, "{component}: the names of its Services");
+    }
+    assert_eq!(certs.len(), K8S_COMPONENTS.len() + 1, "one Certificate per component and the CA");
+}
+
+/// What `vlnav credentials k8s` writes applies cleanly, names the Secrets
+/// the base mounts, and its certificates are valid for the Service names
+/// in vlnav-config: a real mutual-TLS handshake over a headless Service's
+/// name, with the gateway's certificate as the client.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn generated_credentials_apply_and_verify_under_the_service_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let args = K8sCredentialsArgs {
+        out: dir.path().join("creds"),
+        namespace: "vlnav".into(),
+        gateway_names: vec!["vlnav.example.org".into()],
+        robots: vec!["husky-1".into()],
+    };
+    let out = vlnav::credentials::write_k8s(&args).unwrap();
+    let yaml = render(&out);
+    validate(&yaml, true).unwrap_or_else(|r| panic!("generated credentials failed validation:\n{r}"));
+    let secrets = objects(&yaml);
+    let base = objects(&render(&root().join("k8s/base")));
+    let mounted: BTreeSet<String> = of_kind(&base, "Deployment")
+        .iter()
+        .flat_map(|d| volumes(d))
+        .filter_map(|v| v["secret"]["secretName"].as_str().map(str::to_string))
+        .collect();
+    let written: BTreeSet<String> = secrets.iter().map(|s| name(s).to_string()).collect();
+    assert_eq!(written, mounted, "the Secrets written are exactly those the base mounts");
+    assert!(secrets.iter().all(|s| s["metadata"]["namespace"] == "vlnav"));
+
+    // Each address the gateway dials is a name in that stage's certificate.
+    let config = of_kind(&base, "ConfigMap").into_iter().find(|c| name(c) == "vlnav-config").unwrap().clone();
+    let creds = out.join("components");
+    for (component, _) in K8S_COMPONENTS {
+        let der = vlnav_runtime::security::pem_to_der(&std::fs::read(creds.join(format!("{component}.pem"))).unwrap())
+            .unwrap();
+        let names = vlnav_runtime::security::server_names(&der);
+        let key = format!("VLNAV_{}_ADDR", component.replace('-', "_").to_uppercase());
+        if let Some(addr) = config["data"][&key].as_str() {
+            let host = addr.trim_start_matches("dns:///").trim_start_matches("https://").rsplit_once(':').unwrap().0;
+            assert!(names.iter().any(|n| n == host), "{component}: {host} not in {names:?}");
+        }
+        if *component == "gateway" {
+            assert!(names.iter().any(|n| n == "vlnav.example.org"), "{names:?}");
+        }
+    }
+
+    // A real handshake: the planner's server certificate verified as its
+    // headless Service's name, the gateway's certificate accepted by it.
+    let read = |f: &str| std::fs::read(creds.join(f)).unwrap();
+    let ca = std::fs::read(out.join("ca.pem")).unwrap();
+    let server_tls = vlnav_runtime::security::ServerTlsArgs {
+        tls_cert: Some(creds.join("planner.pem")),
+        tls_key: Some(creds.join("planner-key.pem")),
+        tls_client_ca: Some(out.join("ca.pem")),
+    };
+    let health_port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
+    let cfg = vlnav_runtime::ServerConfig { tls: server_tls, health_listen: Some(health_port), ..Default::default() };
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let port = listener.local_addr().unwrap().port();
+    let stop = vlnav_runtime::CancellationToken::new();
+    let serving = tokio::spawn({
+        let stop = stop.clone();
+        async move { vlnav_runtime::serve(&cfg, listener, vlnav_runtime::ServiceSet::new(), stop).await }
+    });
+    let health = |identity: Option<(Vec<u8>, Vec<u8>)>, domain: &'static str| {
+        let tls = vlnav_runtime::security::ClientTls::new(ca.clone(), identity).config(Some(domain));
+        async move {
+            let ch = tonic::transport::Endpoint::from_shared(format!("https://127.0.0.1:{port}"))
+                .unwrap()
+                .tls_config(tls)
+                .unwrap()
+                .connect()
+                .await?;
+            let mut client = tonic_health::pb::health_client::HealthClient::new(ch);
+            client
+                .check(tonic_health::pb::HealthCheckRequest { service: String::new() })
+                .await
+                .map(|r| r.into_inner().status)
+                .map_err(|s| anyhow::anyhow!("{s}"))
+        }
+    };
+    let gateway = Some((read("gateway.pem"), read("gateway-key.pem")));
+    assert_eq!(health(gateway.clone(), "planner-replicas.vlnav.svc").await.unwrap(), 1, "SERVING");
+    assert!(health(gateway.clone(), "reid").await.is_err(), "the planner's certificate does not name reid");
+    assert!(health(None, "planner-replicas").await.is_err(), "a caller without a certificate is refused");
+
+    // The probe port: health alone, in plaintext, nothing else.
+    let plain =
+        tonic::transport::Endpoint::from_shared(format!("http://{health_port}")).unwrap().connect().await.unwrap();
+    let status = tonic_health::pb::health_client::HealthClient::new(plain.clone())
+        .check(tonic_health::pb::HealthCheckRequest { service: String::new() })
+        .await
+        .unwrap();
+    assert_eq!(status.into_inner().status, 1, "SERVING over plaintext on the probe port");
+    let other = vlnav_proto::v1::planner_service_client::PlannerServiceClient::new(plain)
+        .plan(vlnav_proto::v1::PlanRequest::default())
+        .await
+        .unwrap_err();
+    assert_eq!(other.code(), tonic::Code::Unimplemented, "the probe port serves health only: {other}");
+    stop.cancel();
+    let _ = serving.await;
 }

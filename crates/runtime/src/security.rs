@@ -240,6 +240,35 @@ pub fn uri_sans(der: &[u8]) -> Vec<String> {
         .collect()
 }
 
+/// The first certificate of a PEM text, as DER.
+pub fn pem_to_der(pem: &[u8]) -> Option<Vec<u8>> {
+    x509_parser::pem::parse_x509_pem(pem).ok().map(|(_, p)| p.contents)
+}
+
+/// The DNS names and IP addresses a DER certificate is valid for as a
+/// server; empty when it cannot be parsed or has none.
+pub fn server_names(der: &[u8]) -> Vec<String> {
+    use x509_parser::extensions::GeneralName;
+    let Ok((_, cert)) = x509_parser::parse_x509_certificate(der) else {
+        return Vec::new();
+    };
+    let Ok(Some(san)) = cert.subject_alternative_name() else {
+        return Vec::new();
+    };
+    san.value
+        .general_names
+        .iter()
+        .filter_map(|n| match n {
+            GeneralName::DNSName(d) => Some(d.to_string()),
+            GeneralName::IPAddress(b) if b.len() == 4 => Some(IpAddr::from(<[u8; 4]>::try_from(*b).ok()?).to_string()),
+            GeneralName::IPAddress(b) if b.len() == 16 => {
+                Some(IpAddr::from(<[u8; 16]>::try_from(*b).ok()?).to_string())
+            }
+            _ => None,
+        })
+        .collect()
+}
+
 /// The robot ids a peer's certificate chain names (its leaf's
 /// `spiffe://vlnav/robot/<id>` SANs).
 pub fn robot_ids_of_peer(certs: &[impl AsRef<[u8]>]) -> Vec<String> {
@@ -275,6 +304,30 @@ impl DevPki {
     /// certificates if absent, and a certificate for each of `robots` that
     /// has none yet.
     pub fn ensure(dir: &Path, robots: &[&str]) -> anyhow::Result<Self> {
+        let pki = Self::ensure_ca(dir)?;
+        if !pki.server_cert().exists() {
+            let mut sans: Vec<rcgen::SanType> = DEV_SERVER_NAMES
+                .iter()
+                .map(|n| Ok(rcgen::SanType::DnsName((*n).try_into()?)))
+                .collect::<Result<_, rcgen::Error>>()?;
+            sans.push(rcgen::SanType::IpAddress(IpAddr::V4(Ipv4Addr::LOCALHOST)));
+            sans.push(rcgen::SanType::IpAddress(IpAddr::V6(Ipv6Addr::LOCALHOST)));
+            sans.push(rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}server").try_into()?));
+            pki.issue("vlnav server", sans, &pki.server_cert(), &pki.server_key())?;
+        }
+        if !pki.gateway_cert().exists() {
+            let sans = vec![rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}gateway").try_into()?)];
+            pki.issue("vlnav gateway", sans, &pki.gateway_cert(), &pki.gateway_key())?;
+        }
+        for robot in robots {
+            pki.ensure_robot(robot)?;
+        }
+        Ok(pki)
+    }
+
+    /// Opens the PKI in `dir` with only its CA, created if absent (a new CA
+    /// removes the certificates the old one signed).
+    pub fn ensure_ca(dir: &Path) -> anyhow::Result<Self> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         let pki = Self { dir: dir.to_path_buf() };
         if !pki.ca().exists() || !pki.ca_key().exists() {
@@ -298,23 +351,6 @@ impl DevPki {
                 }
             }
         }
-        if !pki.server_cert().exists() {
-            let mut sans: Vec<rcgen::SanType> = DEV_SERVER_NAMES
-                .iter()
-                .map(|n| Ok(rcgen::SanType::DnsName((*n).try_into()?)))
-                .collect::<Result<_, rcgen::Error>>()?;
-            sans.push(rcgen::SanType::IpAddress(IpAddr::V4(Ipv4Addr::LOCALHOST)));
-            sans.push(rcgen::SanType::IpAddress(IpAddr::V6(Ipv6Addr::LOCALHOST)));
-            sans.push(rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}server").try_into()?));
-            pki.issue("vlnav server", sans, &pki.server_cert(), &pki.server_key())?;
-        }
-        if !pki.gateway_cert().exists() {
-            let sans = vec![rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}gateway").try_into()?)];
-            pki.issue("vlnav gateway", sans, &pki.gateway_cert(), &pki.gateway_key())?;
-        }
-        for robot in robots {
-            pki.ensure_robot(robot)?;
-        }
         Ok(pki)
     }
 
@@ -335,6 +371,28 @@ impl DevPki {
             )?;
         }
         Ok(())
+    }
+
+    /// Issues a certificate for service `component` (URI SAN
+    /// `spiffe://vlnav/service/<component>`) valid as a server for
+    /// `dns_names` and as a client, written to `cert_path` / `key_path`.
+    pub fn issue_service(
+        &self,
+        component: &str,
+        dns_names: &[String],
+        cert_path: &Path,
+        key_path: &Path,
+    ) -> anyhow::Result<()> {
+        let mut sans: Vec<rcgen::SanType> = dns_names
+            .iter()
+            .map(|n| match n.parse::<IpAddr>() {
+                Ok(ip) => Ok(rcgen::SanType::IpAddress(ip)),
+                Err(_) => Ok(rcgen::SanType::DnsName(n.as_str().try_into()?)),
+            })
+            .collect::<Result<_, rcgen::Error>>()
+            .with_context(|| format!("{component}: a name in {dns_names:?} is not a valid DNS name"))?;
+        sans.push(rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}{component}").try_into()?));
+        self.issue(&format!("vlnav {component}"), sans, cert_path, key_path)
     }
 
     fn issue(&self, name: &str, sans: Vec<rcgen::SanType>, cert_path: &Path, key_path: &Path) -> anyhow::Result<()> {
@@ -467,7 +525,6 @@ mod tests {
     }
 
     fn pem_der(pem: &str) -> Vec<u8> {
-        let (_, p) = x509_parser::pem::parse_x509_pem(pem.as_bytes()).unwrap();
-        p.contents
+        pem_to_der(pem.as_bytes()).unwrap()
     }
 }

@@ -45,6 +45,11 @@ pub struct ServerConfig {
     /// gateway: people authenticate with tokens, robots with certificates).
     #[arg(skip)]
     pub client_cert_optional: bool,
+    /// Also serve grpc.health.v1 alone, in plaintext, on this address, for
+    /// probes that speak no TLS (Kubernetes' gRPC probes). It answers
+    /// nothing but health, so it needs neither TLS nor --insecure.
+    #[arg(long, env = "VLNAV_HEALTH_LISTEN")]
+    pub health_listen: Option<SocketAddr>,
 }
 
 impl Default for ServerConfig {
@@ -56,6 +61,7 @@ impl Default for ServerConfig {
             tls: Default::default(),
             insecure: false,
             client_cert_optional: false,
+            health_listen: None,
         }
     }
 }
@@ -136,7 +142,7 @@ pub async fn serve(
     stages.insert("grpc.reflection.v1.ServerReflection", "reflection");
     stages.insert("grpc.reflection.v1alpha.ServerReflection", "reflection");
     let mut routes = services.routes;
-    routes.add_service(health_svc).add_service(reflection_v1).add_service(reflection_v1alpha);
+    routes.add_service(health_svc.clone()).add_service(reflection_v1).add_service(reflection_v1alpha);
 
     let addr = listener.local_addr()?;
     let tls = cfg.tls.load(cfg.client_cert_optional)?;
@@ -155,6 +161,24 @@ pub async fn serve(
             tracing::info!(%addr, "shutting down, draining in-flight requests");
         }
     };
+    if let Some(health_addr) = cfg.health_listen {
+        let probe = TcpListener::bind(health_addr)
+            .await
+            .map_err(|e| anyhow::anyhow!("cannot listen for health probes on {health_addr}: {e}"))?;
+        tracing::info!(addr = %probe.local_addr()?, "serving grpc.health.v1 only, plaintext, for probes");
+        let health_only = tonic::transport::Server::builder()
+            .tcp_nodelay(true)
+            .add_service(health_svc.clone())
+            .serve_with_incoming_shutdown(
+                TcpIncoming::from(probe).with_nodelay(Some(true)),
+                shutdown.clone().cancelled_owned(),
+            );
+        tokio::spawn(async move {
+            if let Err(e) = health_only.await {
+                tracing::error!("health probe port stopped: {e}");
+            }
+        });
+    }
     let mut builder = tonic::transport::Server::builder();
     if let Some(tls) = tls {
         builder = builder.tls_config(tls)?;

@@ -20,6 +20,9 @@ pub enum Reply {
     Command { stamp: f64, linear: f64, angular: f64, idle: bool },
     /// A velocity command with this sequence number (a replay, a reordering).
     Numbered { seq: u64, stamp: f64, linear: f64 },
+    /// A velocity command for `mission` that was never announced (empty:
+    /// none), numbered in order, answering this frame.
+    Unannounced { mission: &'static str, linear: f64 },
     /// No answer.
     Silence,
 }
@@ -69,6 +72,7 @@ impl FleetService for ScriptedGateway {
             let mut first = true;
             let mut index = 0usize;
             let mut seq = 0u64;
+            let mut announced = "";
             while let Ok(Some(msg)) = inbound.message().await {
                 let kind = msg.kind;
                 if first {
@@ -92,23 +96,42 @@ impl FleetService for ScriptedGateway {
                         log.lock().unwrap().frames.push((attach_no, f));
                         let reply = script(attach_no, index, stamp);
                         index += 1;
+                        // (seq, stamp, linear, angular, idle, mission, announce it as the gateway does)
                         let numbered = match reply {
                             Reply::Command { stamp: s, linear, angular, idle } => {
                                 seq += 1;
-                                Some((seq, s, linear, angular, idle))
+                                Some((seq, s, linear, angular, idle, if idle { "" } else { "m-test" }, true))
                             }
-                            Reply::Numbered { seq: n, stamp: s, linear } => Some((n, s, linear, 0.0, false)),
+                            Reply::Numbered { seq: n, stamp: s, linear } => {
+                                Some((n, s, linear, 0.0, false, "m-test", true))
+                            }
+                            Reply::Unannounced { mission, linear } => {
+                                seq += 1;
+                                Some((seq, stamp, linear, 0.0, false, mission, false))
+                            }
                             Reply::Silence => None,
                         };
-                        if let Some((seq, s, linear, angular, idle)) = numbered {
+                        if let Some((seq, s, linear, angular, idle, mission, announce)) = numbered {
                             log.lock().unwrap().answered.push((stamp, s));
+                            if announce && mission != announced {
+                                announced = mission;
+                                let a = pb::GatewayCommand {
+                                    kind: Some(pb::gateway_command::Kind::Mission(pb::MissionAnnouncement {
+                                        mission_id: mission.into(),
+                                        stamp: s,
+                                    })),
+                                };
+                                if tx.send(Ok(a)).await.is_err() {
+                                    break;
+                                }
+                            }
                             let cmd = pb::GatewayCommand {
                                 kind: Some(pb::gateway_command::Kind::Velocity(pb::VelocityCommand {
                                     seq,
                                     stamp: s,
                                     twist: Some(pb::Twist2D { linear, angular }),
                                     idle,
-                                    mission_id: if idle { String::new() } else { "m-test".into() },
+                                    mission_id: mission.into(),
                                 })),
                             };
                             if tx.send(Ok(cmd)).await.is_err() {

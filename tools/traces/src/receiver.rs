@@ -130,10 +130,25 @@ pub async fn serve_receiver(
     store: Arc<SpanStore>,
     shutdown: CancellationToken,
 ) -> anyhow::Result<()> {
+    serve_receiver_with(listener, store, None, shutdown).await
+}
+
+/// [`serve_receiver`] over TLS when `tls` is given (with a client CA in it,
+/// only exporters holding a certificate from that CA may send).
+pub async fn serve_receiver_with(
+    listener: TcpListener,
+    store: Arc<SpanStore>,
+    tls: Option<tonic::transport::ServerTlsConfig>,
+    shutdown: CancellationToken,
+) -> anyhow::Result<()> {
     let addr = listener.local_addr()?;
     let (traces, metrics) = OtlpReceiver::new(store.clone()).into_services();
-    tracing::info!(%addr, dir = %store.dir().display(), "OTLP trace receiver listening");
-    tonic::transport::Server::builder()
+    tracing::info!(%addr, dir = %store.dir().display(), tls = tls.is_some(), "OTLP trace receiver listening");
+    let mut builder = tonic::transport::Server::builder();
+    if let Some(tls) = tls {
+        builder = builder.tls_config(tls)?;
+    }
+    builder
         .tcp_nodelay(true)
         .add_service(traces)
         .add_service(metrics)

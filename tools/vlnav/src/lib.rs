@@ -5,8 +5,11 @@
 //!   own loopback port and talking real gRPC to the others, plus a simulated
 //!   Husky attached through the edge agent (`vlnav up`, `vlnav demo`, the
 //!   evaluation's stack);
+//! - [`credentials`]: the certificates and tokens of a Kubernetes
+//!   deployment (`vlnav credentials k8s`);
 //! - [`mission`]: the mission client (`vlnav mission`): submit an
 //!   instruction, follow the mission's events, print a summary.
 
+pub mod credentials;
 pub mod mission;
 pub mod up;

@@ -12,6 +12,13 @@ use vlnav_runtime::{CancellationToken, ports, telemetry};
 pub const CASE_2: &str = "Buddy take left turn, move 4 m ahead, then find the standing person to reach close to it, \
 In your right you may see the visitor chair follow it. Finally go at spot where bicycle is standing.";
 
+#[derive(Subcommand)]
+enum CredentialsCmd {
+    /// Certificates (one CA, one per component, one per robot) and tokens
+    /// for k8s/base, as Secrets in a kustomization (docs/security.md).
+    K8s(vlnav::credentials::K8sCredentialsArgs),
+}
+
 #[derive(Parser)]
 #[command(name = "vlnav", version, about = "Language-driven, map-free navigation for service robots")]
 struct Cli {
@@ -35,6 +42,10 @@ enum Cmd {
     },
     /// Run the evaluation suite in lockstep simulation through the real services.
     Eval(vlnav_eval::EvalArgs),
+    /// Issue credentials: `vlnav credentials k8s` writes the Secrets of a
+    /// Kubernetes deployment (certificates for every component, tokens).
+    #[command(subcommand)]
+    Credentials(CredentialsCmd),
     /// Per-stage latency of a mission from its distributed trace.
     Profile(vlnav_traces::ProfileArgs),
     /// Run a detector on photos: one line per box (or JSON), annotated copies with --out.
@@ -45,8 +56,10 @@ enum Cmd {
 }
 
 /// Starts the built-in OTLP trace receiver (unless an endpoint is configured)
-/// and points this process's exporter at it.
-async fn trace_receiver(data_dir: &std::path::Path, token: &CancellationToken, ephemeral: bool) -> anyhow::Result<()> {
+/// and points this process's exporter at it: over mutual TLS with the
+/// stack's development PKI unless `insecure` (docs/security.md).
+async fn trace_receiver(args: &UpArgs, token: &CancellationToken) -> anyhow::Result<()> {
+    let (data_dir, ephemeral) = (&args.data_dir, args.ephemeral_ports);
     if telemetry::otlp_endpoint().is_some() {
         return Ok(());
     }
@@ -55,13 +68,27 @@ async fn trace_receiver(data_dir: &std::path::Path, token: &CancellationToken, e
         Ok(l) => l,
         Err(_) => TcpListener::bind(SocketAddr::from(([127, 0, 0, 1], 0))).await?,
     };
-    let endpoint = format!("http://{}", listener.local_addr()?);
-    // SAFETY: set before any other thread reads the environment (telemetry is not yet initialised).
+    let (endpoint, tls) = if args.insecure {
+        (format!("http://{}", listener.local_addr()?), None)
+    } else {
+        let pki = vlnav_runtime::security::DevPki::ensure(&data_dir.join("security"), &[])?;
+        let vars = [
+            ("OTEL_EXPORTER_OTLP_CERTIFICATE", pki.ca()),
+            ("OTEL_EXPORTER_OTLP_CLIENT_CERTIFICATE", pki.gateway_cert()),
+            ("OTEL_EXPORTER_OTLP_CLIENT_KEY", pki.gateway_key()),
+        ];
+        for (k, v) in vars {
+            // SAFETY: set before any other thread reads the environment (telemetry is not yet initialised).
+            unsafe { std::env::set_var(k, v) };
+        }
+        (format!("https://{}", listener.local_addr()?), pki.server_args().load(false)?)
+    };
+    // SAFETY: as above.
     unsafe { std::env::set_var("OTEL_EXPORTER_OTLP_ENDPOINT", &endpoint) };
     let store = std::sync::Arc::new(vlnav_traces::SpanStore::open(data_dir.join("traces"))?);
     let token = token.clone();
     tokio::spawn(async move {
-        if let Err(e) = vlnav_traces::serve_receiver(listener, store, token).await {
+        if let Err(e) = vlnav_traces::serve_receiver_with(listener, store, tls, token).await {
             tracing::error!("trace receiver stopped: {e}");
         }
     });
@@ -80,7 +107,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.cmd {
         Cmd::Up(args) => {
             let receiver = CancellationToken::new();
-            trace_receiver(&args.data_dir, &receiver, args.ephemeral_ports).await?;
+            trace_receiver(&args, &receiver).await?;
             let telemetry = telemetry::init("vlnav")?;
             let stack = up(&args).await?;
             eprintln!("vlnav is up: gateway on {} (Ctrl-C to stop)", stack.gateway_uri());
@@ -115,7 +142,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Cmd::Demo { instruction, up: args } => {
             let receiver = CancellationToken::new();
-            trace_receiver(&args.data_dir, &receiver, args.ephemeral_ports).await?;
+            trace_receiver(&args, &receiver).await?;
             let telemetry = telemetry::init("vlnav")?;
             let stack = up(&args).await?;
             let mission_args = MissionArgs {
@@ -172,6 +199,11 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             let report = vlnav_eval::run_eval(args, target).await;
             stack.shutdown().await?;
             report.map(|_| ())
+        }
+        Cmd::Credentials(CredentialsCmd::K8s(args)) => {
+            let dir = vlnav::credentials::write_k8s(&args)?;
+            eprintln!("{}", vlnav::credentials::next_steps(&args, &dir));
+            Ok(())
         }
         Cmd::Profile(args) => {
             println!("{}", vlnav_traces::run_profile(args).await?);
