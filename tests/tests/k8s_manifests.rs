@@ -421,6 +421,55 @@ fn edge_gpu_puts_the_neural_services_on_a_gpu() {
     }
 }
 
+/// Every GPU request of the overlay at maximum scale (the HPA's maximum, or
+/// the fixed replicas, plus a rolling update's surge) fits the physical GPUs
+/// it declares, sliced as its device-plugin time-slicing config says.
+#[test]
+fn edge_gpu_requests_at_maximum_scale_fit_its_gpus() {
+    let objs = objects(&render(&root().join("k8s/overlays/edge-gpu")));
+    let sharing = of_kind(&objs, "ConfigMap")
+        .into_iter()
+        .find(|c| !c["metadata"]["annotations"]["vlnav.io/physical-gpus"].is_null())
+        .expect("edge-gpu declares its GPUs and their time-slicing");
+    let physical: u64 =
+        sharing["metadata"]["annotations"]["vlnav.io/physical-gpus"].as_str().unwrap().parse().unwrap();
+    let config = sharing["data"].as_object().unwrap().values().next().expect("a device-plugin config");
+    let config = &objects(config.as_str().unwrap())[0];
+    let slicing = &config["sharing"]["timeSlicing"];
+    assert_eq!(slicing["failRequestsGreaterThanOne"], true, "a pod takes one slice");
+    let replicas = slicing["resources"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["name"] == "nvidia.com/gpu")
+        .and_then(|r| r["replicas"].as_u64())
+        .expect("nvidia.com/gpu is time-sliced");
+    let hpa_max: BTreeMap<&str, u64> = of_kind(&objs, "HorizontalPodAutoscaler")
+        .into_iter()
+        .map(|h| (get(h, "spec.scaleTargetRef.name").as_str().unwrap(), get(h, "spec.maxReplicas").as_u64().unwrap()))
+        .collect();
+    let mut demand = 0;
+    let mut detail = Vec::new();
+    for d in of_kind(&objs, "Deployment") {
+        let Some(per_pod) = gpu_limit(d) else { continue };
+        let per_pod: u64 = per_pod.parse().unwrap();
+        assert_eq!(per_pod, 1, "{}: one slice a pod", name(d));
+        let pods = hpa_max.get(name(d)).copied().unwrap_or_else(|| get(d, "spec.replicas").as_u64().unwrap());
+        let surge = match d["spec"]["strategy"]["rollingUpdate"]["maxSurge"].as_u64() {
+            Some(s) => s,
+            None if d["spec"]["strategy"]["type"] == "Recreate" => 0,
+            None => 1,
+        };
+        demand += (pods + surge) * per_pod;
+        detail.push(format!("{} {} pods + {} surge", name(d), pods, surge));
+    }
+    assert!(demand > 0, "edge-gpu requests GPUs");
+    assert!(
+        demand <= physical * replicas,
+        "{demand} GPU slices at maximum scale ({detail:?}) do not fit {physical} GPU(s) × {replicas} slices"
+    );
+}
+
 #[test]
 fn dockerfiles_pass_hadolint() {
     let deploy = root().join("deploy");
