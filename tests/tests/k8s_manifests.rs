@@ -431,8 +431,7 @@ fn edge_gpu_requests_at_maximum_scale_fit_its_gpus() {
         .into_iter()
         .find(|c| !c["metadata"]["annotations"]["vlnav.io/physical-gpus"].is_null())
         .expect("edge-gpu declares its GPUs and their time-slicing");
-    let physical: u64 =
-        sharing["metadata"]["annotations"]["vlnav.io/physical-gpus"].as_str().unwrap().parse().unwrap();
+    let physical: u64 = sharing["metadata"]["annotations"]["vlnav.io/physical-gpus"].as_str().unwrap().parse().unwrap();
     let config = sharing["data"].as_object().unwrap().values().next().expect("a device-plugin config");
     let config = &objects(config.as_str().unwrap())[0];
     let slicing = &config["sharing"]["timeSlicing"];

@@ -220,53 +220,45 @@ fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
 }
 
-/// The URI subject-alternative names of a DER certificate (its SPIFFE-style
-/// identities); empty when it cannot be parsed or has none.
-pub fn uri_sans(der: &[u8]) -> Vec<String> {
-    use x509_parser::extensions::GeneralName;
+/// The subject-alternative names of a DER certificate that `pick` keeps;
+/// empty when it cannot be parsed or has none.
+fn sans<T>(der: &[u8], pick: impl Fn(&x509_parser::extensions::GeneralName) -> Option<T>) -> Vec<T> {
     let Ok((_, cert)) = x509_parser::parse_x509_certificate(der) else {
         return Vec::new();
     };
     let Ok(Some(san)) = cert.subject_alternative_name() else {
         return Vec::new();
     };
-    san.value
-        .general_names
-        .iter()
-        .filter_map(|n| match n {
-            GeneralName::URI(u) => Some(u.to_string()),
+    san.value.general_names.iter().filter_map(pick).collect()
+}
+
+/// The URI subject-alternative names of a DER certificate (its SPIFFE-style
+/// identities).
+pub fn uri_sans(der: &[u8]) -> Vec<String> {
+    use x509_parser::extensions::GeneralName;
+    sans(der, |n| match n {
+        GeneralName::URI(u) => Some(u.to_string()),
+        _ => None,
+    })
+}
+
+/// The DNS names and IP addresses a DER certificate is valid for as a server.
+pub fn server_names(der: &[u8]) -> Vec<String> {
+    use x509_parser::extensions::GeneralName;
+    sans(der, |n| match n {
+        GeneralName::DNSName(d) => Some(d.to_string()),
+        GeneralName::IPAddress(b) => match b.len() {
+            4 => Some(IpAddr::from(<[u8; 4]>::try_from(*b).ok()?).to_string()),
+            16 => Some(IpAddr::from(<[u8; 16]>::try_from(*b).ok()?).to_string()),
             _ => None,
-        })
-        .collect()
+        },
+        _ => None,
+    })
 }
 
 /// The first certificate of a PEM text, as DER.
 pub fn pem_to_der(pem: &[u8]) -> Option<Vec<u8>> {
     x509_parser::pem::parse_x509_pem(pem).ok().map(|(_, p)| p.contents)
-}
-
-/// The DNS names and IP addresses a DER certificate is valid for as a
-/// server; empty when it cannot be parsed or has none.
-pub fn server_names(der: &[u8]) -> Vec<String> {
-    use x509_parser::extensions::GeneralName;
-    let Ok((_, cert)) = x509_parser::parse_x509_certificate(der) else {
-        return Vec::new();
-    };
-    let Ok(Some(san)) = cert.subject_alternative_name() else {
-        return Vec::new();
-    };
-    san.value
-        .general_names
-        .iter()
-        .filter_map(|n| match n {
-            GeneralName::DNSName(d) => Some(d.to_string()),
-            GeneralName::IPAddress(b) if b.len() == 4 => Some(IpAddr::from(<[u8; 4]>::try_from(*b).ok()?).to_string()),
-            GeneralName::IPAddress(b) if b.len() == 16 => {
-                Some(IpAddr::from(<[u8; 16]>::try_from(*b).ok()?).to_string())
-            }
-            _ => None,
-        })
-        .collect()
 }
 
 /// The robot ids a peer's certificate chain names (its leaf's
