@@ -163,30 +163,24 @@ impl LastCommand {
     }
 
     /// Hands `v`'s twist to the governor and keeps the rest, unless the gate
-    /// drops it; returns whether it was taken.
-    pub(crate) fn take(&mut self, gov: &mut Governor, v: pb::VelocityCommand) -> bool {
-        let moves = twist_of(&v) != Twist::ZERO;
-        if let Err(why) = self.gate.admit(v.seq, v.stamp, &v.mission_id, moves) {
-            let d = self.gate.dropped();
+    /// drops it (logged with the counts so far).
+    pub(crate) fn take(&mut self, gov: &mut Governor, v: pb::VelocityCommand) {
+        let twist = twist_of(&v);
+        if let Err(why) = self.gate.admit(v.seq, v.stamp, &v.mission_id, twist != Twist::ZERO) {
             tracing::warn!(
                 seq = v.seq,
                 stamp = v.stamp,
                 ?why,
-                duplicate = d.duplicate,
-                out_of_order = d.out_of_order,
-                stale = d.stale,
-                unanswerable = d.unanswerable,
-                unknown_mission = d.unknown_mission,
+                dropped = ?self.gate.dropped(),
                 mission = %v.mission_id,
                 announced = %self.gate.announced(),
                 "velocity command dropped"
             );
-            return false;
+            return;
         }
-        gov.on_command(v.stamp, twist_of(&v));
+        gov.on_command(v.stamp, twist);
         self.idle = v.idle;
         self.mission = v.mission_id;
-        true
     }
 }
 
@@ -497,7 +491,7 @@ impl Session<'_> {
                 _ = shutdown.cancelled() => return SessionEnd::Finished,
                 m = link.recv() => match m {
                     Err(e) => return SessionEnd::Lost(e),
-                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => { last.take(gov, v); }
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => last.take(gov, v),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Mission(a)) }) => last.announce(&a),
                     Ok(_) => {}

@@ -410,7 +410,7 @@ async fn ros_session(
             _ = shutdown.cancelled() => { robot.publish(Twist::ZERO); return SessionEnd::Finished; }
             m = link.recv() => match m {
                 Err(e) => return SessionEnd::Lost(e),
-                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => { last.take(gov, v); }
+                Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => last.take(gov, v),
                 Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => {
                     tracing::warn!("ResetOdometry is not supported by the ros1 driver; odometry goals stay in the robot's odom frame");
                 }

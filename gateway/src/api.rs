@@ -85,6 +85,13 @@ impl Gateway {
         self.fleet.pipeline()
     }
 
+    /// The gateway's server settings on top of `base`: people come with
+    /// tokens and robots with certificates, so a client certificate is
+    /// checked when presented (Attach needs one) but not required.
+    pub fn server_config(base: &ServerConfig) -> ServerConfig {
+        ServerConfig { client_cert_optional: true, ..base.clone() }
+    }
+
     /// MissionService and FleetService behind the token layer, ready for
     /// `vlnav_runtime::serve`. When `server` verifies client certificates,
     /// a robot attaches only with a certificate naming it.

@@ -32,10 +32,7 @@ async fn main() -> anyhow::Result<()> {
         }
         eprintln!("vlnav-gateway: INSECURE: no bearer tokens on {addr}; anyone who reaches it can submit missions");
     }
-    // People authenticate with tokens, robots with certificates: a client
-    // certificate is checked when presented (Attach needs one), not required.
-    let mut server = cli.server.clone();
-    server.client_cert_optional = true;
+    let server = Gateway::server_config(&cli.server);
     let build = async { Ok(Gateway::new(&cli.gateway)?.services(&ServerConfig::default())) };
     vlnav_runtime::serve_main("vlnav-gateway", ports::GATEWAY, server, build).await
 }

@@ -124,13 +124,16 @@ fn secret(yaml: &mut String, name: &str, kind: &str, component: &str, data: &[(&
 
 /// What to run next, printed after writing.
 pub fn next_steps(args: &K8sCredentialsArgs, dir: &Path) -> String {
+    let pki = DevPki { dir: dir.to_path_buf() };
     let robots: String = args
         .robots
         .iter()
         .map(|r| {
             format!(
-                "\n  robot {r}: vlnav-edge --tls-ca {0}/ca.pem --tls-client-cert {0}/robot-{r}.pem --tls-client-key {0}/robot-{r}-key.pem ...",
-                dir.display()
+                "\n  robot {r}: vlnav-edge --tls-ca {} --tls-client-cert {} --tls-client-key {} ...",
+                pki.ca().display(),
+                pki.robot_cert(r).display(),
+                pki.robot_key(r).display()
             )
         })
         .collect();

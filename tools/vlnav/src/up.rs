@@ -337,12 +337,10 @@ pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
     };
 
     let mut opts = GatewayOptions::loopback(&stage_ports, args.data_dir.clone());
-    let mut gateway_cfg = cfg.clone();
+    let gateway_cfg = Gateway::server_config(&cfg);
     if let Some(sec) = &security {
         opts = opts.over_tls(sec.pki.client_args(Some((sec.pki.gateway_cert(), sec.pki.gateway_key()))));
         opts.tokens_file = Some(sec.tokens_file.clone());
-        // People come with tokens, robots with certificates.
-        gateway_cfg.client_cert_optional = true;
     }
     let gateway = Gateway::new(&opts)?;
     let l_gateway = if eph {
