@@ -18,6 +18,7 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         suite: std::path::PathBuf::from(vlnav_eval::DEFAULT_SUITE),
         trials: Some(1),
         seed: 7,
+        only_trials: Vec::new(),
         scenarios: vec!["corridor".into(), "lab".into()],
         modes: vec![vlnav_eval::metrics::Mode::Hybrid],
         out: out.path().to_path_buf(),

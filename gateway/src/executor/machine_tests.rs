@@ -623,3 +623,130 @@ fn metrics_come_from_frame_stamps_and_ground_truth() {
     assert_eq!(p.soft_collisions, 1);
     assert!((p.final_error_m - 0.4).abs() < 1e-9);
 }
+
+/// Stages that see the chair box and answer `located` with the fused
+/// target `target(frame)`; the frame number comes from the stamp.
+fn tally(
+    target: impl Fn(u32) -> Vector3<f64>,
+    f: u32,
+    boxes: Vec<Detection>,
+) -> impl FnMut(&Request) -> Result<Reply, StageFailure> {
+    move |r| {
+        Ok(match r {
+            Request::StartStep { .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { .. } => Reply::Perceived { boxes: boxes.clone() },
+            Request::Locate { .. } => {
+                let t = target(f);
+                Reply::Located(Estimate {
+                    status: EstimateStatus::Ok,
+                    goal: Some(Goal {
+                        pose: Pose2::new(t.x - 1.5, t.y, 0.0),
+                        position_tolerance: 0.25,
+                        yaw_tolerance: 0.2,
+                        rotation_only: false,
+                    }),
+                    fused_target: Some(t),
+                    range_m: t.x,
+                })
+            }
+            Request::Drive { .. } => driven(DriveStatus::Moving, 0.5, 2.0),
+            other => panic!("frame {f}: unexpected {other:?}"),
+        })
+    }
+}
+
+fn seen(m: &mut Mission) -> usize {
+    events(m).iter().filter(|e| matches!(e, Event::TargetSeen { .. })).count()
+}
+
+#[test]
+fn a_bare_majority_over_another_class_does_not_confirm_twice_as_many_sightings_do() {
+    // Chair, couch, chair, couch, chair, couch, chair, chair: 5 sightings to
+    // 3 frames of another class on the same spot. A bare majority; the
+    // detector that confuses one frame in five could show this of a couch.
+    // One more chair (6 to 3) confirms.
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![find(56, "chair")]);
+    let couch = Detection { class_id: 57, label: "couch".into(), ..chair(70.0, 95.0) };
+    for f in 0..9u32 {
+        let boxes = if [1, 3, 5].contains(&f) { vec![couch.clone()] } else { vec![chair(70.0, 95.0)] };
+        let (cmd, _) =
+            cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), tally(|_| Vector3::new(3.5, 0.0, 0.5), f, boxes));
+        assert_eq!(seen(&mut m), usize::from(f == 8), "frame {f}");
+        assert_eq!(cmd.twist.linear != 0.0, f == 8, "frame {f}: driven once confirmed");
+    }
+}
+
+#[test]
+fn sightings_scattered_far_apart_never_confirm_a_target() {
+    // Every frame a chair box, each putting the chair 2 m from the last:
+    // false positives at random places, not one object. None counts for
+    // another's candidate, so nothing is confirmed and nothing driven to.
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![find(56, "chair")]);
+    for f in 0..20u32 {
+        let (cmd, _) = cycle(
+            &mut m,
+            &p,
+            at(f64::from(f) * 0.2, 0.0, 0.0, 0.0),
+            tally(
+                |f| Vector3::new(3.0 + 2.0 * f64::from(f % 5), if f % 2 == 0 { 2.0 } else { -2.0 }, 0.5),
+                f,
+                vec![chair(70.0, 95.0)],
+            ),
+        );
+        assert_eq!(cmd.twist, Twist::ZERO, "frame {f}");
+    }
+    assert_eq!(seen(&mut m), 0);
+    // The same detector on one object, its estimates within centimetres:
+    // confirmed after the vote's window.
+    let mut m = mission(vec![find(56, "chair")]);
+    for f in 0..8u32 {
+        let wobble = 0.05 * f64::from(f % 3);
+        cycle(
+            &mut m,
+            &p,
+            at(f64::from(f) * 0.2, 0.0, 0.0, 0.0),
+            tally(move |_| Vector3::new(3.5 + wobble, 0.0, 0.5), f, vec![chair(70.0, 95.0)]),
+        );
+    }
+    assert_eq!(seen(&mut m), 1);
+}
+
+#[test]
+fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
+    // One glimpse of a chair 8 m away, 30° to the left, never confirmed:
+    // after the look-around the search leg goes toward it, half the way to
+    // the stopping distance; with no glimpse, straight ahead.
+    let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
+    let glimpse = Vector3::new(8.0 * FRAC_PI_6.cos(), 8.0 * FRAC_PI_6.sin(), 0.5);
+    let mut m = mission(vec![find(56, "chair")]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), tally(move |_| glimpse, 0, vec![chair(70.0, 95.0)]));
+    let mut legs = Vec::new();
+    let mut frame = 1;
+    while !m.is_awaiting() {
+        assert!(frame < 300, "exploration is bounded");
+        let (_, asked) = cycle(
+            &mut m,
+            &p,
+            at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        legs.extend(asked.into_iter().filter_map(|r| match r {
+            Request::MoveGoal(q) if q.f_dist > 0.0 => Some(q),
+            _ => None,
+        }));
+        frame += 1;
+    }
+    assert_eq!(legs.len(), 1, "{legs:?}");
+    assert!((legs[0].yaw - FRAC_PI_6).abs() < 1e-9, "{:?}", legs[0]);
+    assert!((legs[0].f_dist - (8.0 - p.default_d_s) / 2.0).abs() < 1e-9, "{:?}", legs[0]);
+
+    let pose = Pose2::new(1.0, 2.0, FRAC_PI_2);
+    assert_eq!(search_leg(pose, None, 1.5, &p), MoveQuery { anchor: pose, f_dist: p.search_leg_m, yaw: 0.0, d_s: 0.0 });
+    // A lead within reach: straight ahead; a near one: no farther than the stopping distance.
+    let near = Vector3::new(1.0, 3.8, 0.0);
+    assert_eq!(search_leg(pose, Some(&near), 1.5, &p).yaw, 0.0);
+    let q = search_leg(pose, Some(&Vector3::new(1.0, 5.0, 0.0)), 1.5, &p);
+    assert!((q.f_dist - 1.5).abs() < 1e-9 && q.yaw.abs() < 1e-9, "{q:?}");
+}

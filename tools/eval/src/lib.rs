@@ -55,6 +55,11 @@ pub struct EvalArgs {
     /// Master seed: every trial's seed is hash(seed, scenario, mode, trial).
     #[arg(long, env = "VLNAV_EVAL_SEED", default_value_t = 1)]
     pub seed: u64,
+    /// Run only these trial numbers of each scenario and mode (comma-separated,
+    /// each below --trials), with the seeds they have in the full run: one
+    /// row of a trials.csv, re-run alone to look at it.
+    #[arg(long = "trial", value_delimiter = ',')]
+    pub only_trials: Vec<u32>,
     /// Run only these scenarios (comma-separated names; default all).
     #[arg(long = "scenario", env = "VLNAV_EVAL_SCENARIOS", value_delimiter = ',')]
     pub scenarios: Vec<String>,
@@ -103,6 +108,7 @@ impl Default for EvalArgs {
             suite: PathBuf::from(DEFAULT_SUITE),
             trials: None,
             seed: 1,
+            only_trials: Vec::new(),
             scenarios: Vec::new(),
             modes: Vec::new(),
             out: PathBuf::from(".vlnav/eval"),
@@ -205,7 +211,13 @@ pub async fn run_eval(args: EvalArgs, target: Target) -> anyhow::Result<EvalRepo
     suite.select(&args.scenarios).map_err(|e| anyhow::anyhow!("--scenario: {e}"))?;
     let trials = args.trials.unwrap_or(suite.run.trials);
     anyhow::ensure!(trials >= 1, "--trials must be at least 1");
-    let specs = suite::plan_trials(&suite, trials, args.seed, &args.modes);
+    if let Some(t) = args.only_trials.iter().find(|&&t| t >= trials) {
+        anyhow::bail!("--trial {t}: the run has trials 0 to {} (--trials {trials})", trials - 1);
+    }
+    let mut specs = suite::plan_trials(&suite, trials, args.seed, &args.modes);
+    if !args.only_trials.is_empty() {
+        specs.retain(|s| args.only_trials.contains(&s.trial));
+    }
     anyhow::ensure!(!specs.is_empty(), "no trials to run: no scenario has instructions of the modes asked for");
 
     std::fs::create_dir_all(args.out.join("plots")).with_context(|| format!("cannot create {}", args.out.display()))?;
