@@ -21,9 +21,11 @@
 //!   object in many frames; demanding an unbroken streak would leave it
 //!   unconfirmed — docs/perception.md) → local planner until within d_s.
 //!   The detector is asked for every class, and a candidate is confirmed
-//!   only while its sightings are at least twice the frames in which a box of another
-//!   class stands where the candidate projects, counted over a full window
-//!   of `confirm_window` frames from its first sighting: a detector that takes a
+//!   only once its sightings are at least twice the frames in which a box of
+//!   another class stands where the candidate projects, counted over every
+//!   frame it has been watched and after a full window of `confirm_window`
+//!   frames from its first sighting; sightings more than `CONSISTENT_M` from
+//!   it do not count for it: a detector that takes a
 //!   bicycle for a motorcycle in one frame of five does not send the robot
 //!   to the bicycle. A candidate that the other class outvotes is dropped,
 //!   its place remembered and ignored for the rest of the step, and a new
@@ -274,10 +276,15 @@ struct FindRun {
 }
 
 impl FindRun {
-    /// An unnamed fixed target that is put to the class vote and checked
-    /// for consistent sightings before it is confirmed.
-    fn voted(&self) -> bool {
+    /// An unnamed fixed target: put to the class vote and checked for
+    /// consistent sightings before it is confirmed.
+    fn put_to_vote(&self) -> bool {
         self.person.is_empty() && !self.moving
+    }
+
+    /// A candidate is under the vote: sighted, not yet confirmed.
+    fn under_vote(&self) -> bool {
+        self.put_to_vote() && !self.confirmed && self.votes_for > 0
     }
 
     /// Drops the current candidate: its votes and the subgoal estimator's
@@ -847,9 +854,7 @@ impl Mission {
         let (boxes, others): (Vec<Detection>, Vec<Detection>) = all.into_iter().partition(|b| b.class_id == f.class_id);
         // The class vote: does another class's box (and none of the
         // target's) stand where the unconfirmed candidate projects?
-        let rival = f.voted()
-            && !f.confirmed
-            && f.votes_for > 0
+        let rival = f.under_vote()
             && matches!(f.fused.as_ref().and_then(|t| target_view(&self.frame, t)),
                 Some(TargetView::At(u, v)) if others.iter().any(|b| centred_on(b, u, v)) && box_at(&boxes, u, v).is_none());
         let Some(f) = self.find_mut() else { return self.hold() };
@@ -904,7 +909,7 @@ impl Mission {
         // or a false positive: it does not count for this one. (False
         // positives come at random places; counted together over a long
         // look, a few of them would confirm a target where there is none.)
-        let candidate = (f.voted() && !f.confirmed && f.votes_for > 0).then_some(f.fused).flatten();
+        let candidate = f.under_vote().then_some(f.fused).flatten();
         let observation = observation.filter(|(_, _, _, est)| match (candidate, est.fused_target) {
             (Some(c), Some(t)) => (c.xy() - t.xy()).norm() <= CONSISTENT_M,
             _ => true,
@@ -928,7 +933,7 @@ impl Mission {
                 // A fixed, unnamed target is put to the class vote over a full
                 // window first; a named person (ReID decides) or a moving
                 // target is confirmed by its sightings alone.
-                let voted = !f.voted() || f.watched >= p.confirm_window;
+                let voted = !f.put_to_vote() || f.watched >= p.confirm_window;
                 if !f.confirmed
                     && voted
                     && f.recent.count_ones() >= p.confirm_frames
@@ -950,7 +955,7 @@ impl Mission {
             None => {
                 f.recent = (f.recent << 1) & window_mask(p.confirm_window);
                 f.unseen += 1;
-                if f.voted() && !f.confirmed && f.votes_for > 0 && f.recent == 0 {
+                if f.under_vote() && f.recent == 0 {
                     // Not seen again for a whole window: forget the
                     // candidate, keeping where it was (`fused`) as a lead
                     // for the search.
