@@ -151,6 +151,14 @@ impl Projector {
         self.rotation * self.intrinsics.back_project(u, v, d) + self.translation
     }
 
+    /// Where the ray through pixel `(u, v)` meets the ground (`base_link`
+    /// z = 0), if it points below the horizon: the footprint of an object
+    /// standing on the floor, from the bottom of its box, without depth.
+    pub fn ground_point(&self, u: f64, v: f64) -> Option<Vector3<f64>> {
+        let ray = self.rotation * self.intrinsics.back_project(u, v, 1.0);
+        (ray.z < -1e-9).then(|| self.translation + ray * (-self.translation.z / ray.z))
+    }
+
     /// The pixel `(u, v)` and depth at which a `base_link` point is seen, if in front of the camera.
     #[inline]
     pub fn pixel_of(&self, p: Vector3<f64>) -> Option<(f64, f64, f64)> {
@@ -168,6 +176,27 @@ mod tests {
 
     fn close(a: &Vector3<f64>, b: [f64; 3]) {
         assert!((a - Vector3::from(b)).norm() < 1e-9, "{a:?} != {b:?}");
+    }
+
+    #[test]
+    fn a_ray_below_the_horizon_meets_the_ground_where_the_point_projects() {
+        let camera = Camera {
+            width: 160,
+            height: 120,
+            intrinsics: Intrinsics { fx: 80.0, fy: 80.0, cx: 80.0, cy: 60.0 },
+            mount: Mount { translation: Vector3::new(0.3, 0.0, 0.5), ..Mount::default() },
+            depth_min_m: 0.0,
+            depth_max_m: 1e3,
+        };
+        let p = Projector::new(&camera);
+        // 20 px below the centre at fx 80: 0.5 m down over 2 m ahead.
+        close(&p.ground_point(80.0, 80.0).unwrap(), [2.3, 0.0, 0.0]);
+        let far_left = Vector3::new(4.0, 1.5, 0.0);
+        let (u, v, _) = p.pixel_of(far_left).unwrap();
+        close(&p.ground_point(u, v).unwrap(), [4.0, 1.5, 0.0]);
+        // The horizon and above: no ground.
+        assert!(p.ground_point(80.0, 60.0).is_none());
+        assert!(p.ground_point(80.0, 10.0).is_none());
     }
 
     #[test]

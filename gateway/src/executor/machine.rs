@@ -37,6 +37,10 @@
 //!   exploration (scan: turn 30°, look; then search legs, toward the last
 //!   unconfirmed sighting if there was one) → a question
 //!   to the user → the user's answer → the planner revises the remaining plan.
+//!   A target described by another object ("the chair next to the table",
+//!   the step's `reference`): while it is unconfirmed, the instance whose
+//!   footprint stands nearest where a reference box has stood this step is
+//!   the candidate (docs/perception.md, "Relations").
 //! - FOLLOW: FIND with a moving-target track, kept for a while.
 //! - RETURN: back to the odometry pose where the mission started.
 //! - A stage that fails holds the robot and backs off in sensor time; one that
@@ -79,6 +83,15 @@ const LEAD_MIN_M: f64 = 0.5;
 /// window of 8 frames goes the wrong way in about one window of 18, and a
 /// robot watching an object for a few seconds sees many windows.
 const VOTE_MARGIN: u32 = 2;
+/// A target with a reference: another instance takes the candidate's place
+/// only when its footprint stands this much nearer a reference's (metres on
+/// the ground), so two about equally near do not take turns.
+const REFERENCE_MARGIN_M: f64 = 0.5;
+/// Reference footprints this close (metres) are one object seen again: the
+/// newer replaces the older. At most `REFERENCE_PLACES` are kept, the oldest
+/// forgotten first.
+const REFERENCE_SAME_M: f64 = 0.75;
+const REFERENCE_PLACES: usize = 16;
 /// Sensor seconds one scan turn of exploration may take before looking anyway.
 const SCAN_TURN_LIMIT_S: f64 = 4.0;
 /// A search leg slower than this on average ends early, m/s.
@@ -241,6 +254,10 @@ struct FindRun {
     class_id: i32,
     person: String,
     target: String,
+    /// The class of the object the target was described by, if any, and
+    /// where (odom, on the floor) boxes of that class have stood this step.
+    reference: Option<i32>,
+    reference_at: Vec<Vector2<f64>>,
     d_s: f64,
     moving: bool,
     /// FOLLOW: how long to follow once the target is confirmed, s (the
@@ -500,6 +517,68 @@ fn centred_on(b: &Detection, u: f32, v: f32) -> bool {
     (b.x_min + qx..=b.x_max - qx).contains(&u) && (b.y_min + qy..=b.y_max - qy).contains(&v)
 }
 
+/// Where an object stands on the floor: the ground under the middle of its
+/// box's bottom edge (`base_link`, metres).
+fn footprint(projector: &Projector, b: &Detection) -> Option<Vector2<f64>> {
+    let u = (b.x_min + b.x_max) as f64 / 2.0;
+    projector.ground_point(u, b.y_max as f64).map(|g| g.xy())
+}
+
+/// Where this frame's boxes of class `class` stand (odom footprints).
+fn places_of(frame: &Frame, boxes: &[Detection], class: i32) -> Vec<Vector2<f64>> {
+    let Some(camera) = frame.camera.as_ref() else { return Vec::new() };
+    let projector = Projector::new(camera);
+    boxes
+        .iter()
+        .filter(|b| b.class_id == class)
+        .filter_map(|b| footprint(&projector, b))
+        .map(|g| frame.pose.transform(&g))
+        .collect()
+}
+
+/// Remembers where reference boxes stood.
+fn remember_reference(f: &mut FindRun, places: Vec<Vector2<f64>>) {
+    for at in places {
+        f.reference_at.retain(|p| (p - at).norm() > REFERENCE_SAME_M);
+        if f.reference_at.len() == REFERENCE_PLACES {
+            f.reference_at.remove(0);
+        }
+        f.reference_at.push(at);
+    }
+}
+
+/// An unconfirmed target with a reference seen this step (in this frame or
+/// an earlier one): the instance in this frame whose footprint stands
+/// nearest a reference's, and whether it replaces the candidate tracked so
+/// far. The candidate is kept unless another instance is
+/// `REFERENCE_MARGIN_M` nearer. `None` when the rule does not apply (no
+/// reference seen yet, no camera model, a box whose bottom is at or above
+/// the horizon): the usual choice then stands.
+fn by_reference<'a>(f: &FindRun, frame: &Frame, boxes: &'a [Detection]) -> Option<(&'a Detection, bool)> {
+    if f.confirmed || f.reference_at.is_empty() {
+        return None;
+    }
+    let projector = Projector::new(frame.camera.as_ref()?);
+    let gaps = boxes
+        .iter()
+        .map(|b| {
+            let at = frame.pose.transform(&footprint(&projector, b)?);
+            f.reference_at.iter().map(|a| (a - at).norm()).min_by(f64::total_cmp)
+        })
+        .collect::<Option<Vec<f64>>>()?;
+    let best = (0..boxes.len()).min_by(|&i, &j| gaps[i].total_cmp(&gaps[j]))?;
+    let Some((cx, cy)) = f.last_center else { return Some((&boxes[best], false)) };
+    let current = (0..boxes.len()).min_by(|&i, &j| {
+        let d = |k: usize| (boxes[k].center().0 - cx).hypot(boxes[k].center().1 - cy);
+        d(i).total_cmp(&d(j))
+    })?;
+    if current == best || gaps[current] - gaps[best] <= REFERENCE_MARGIN_M {
+        Some((&boxes[current], false))
+    } else {
+        Some((&boxes[best], true))
+    }
+}
+
 /// The box of an unnamed target in this frame: where a confirmed fixed
 /// target projects; else the instance tracked so far; else the most confident.
 fn choose_box<'a>(f: &FindRun, frame: &Frame, boxes: &'a [Detection]) -> Option<&'a Detection> {
@@ -737,6 +816,8 @@ impl Mission {
                 } else {
                     step.target.clone()
                 },
+                reference: step.reference.as_ref().map(|r| r.class_id),
+                reference_at: Vec::new(),
                 d_s,
                 moving: step.action == Action::Follow,
                 follow_s: if step.duration_s > 0.0 { step.duration_s } else { p.follow_default_s },
@@ -852,6 +933,7 @@ impl Mission {
     fn find_box(&mut self, p: &ExecutorParams, all: Vec<Detection>) -> Next {
         let Some(f) = self.find() else { return self.hold() };
         let (boxes, others): (Vec<Detection>, Vec<Detection>) = all.into_iter().partition(|b| b.class_id == f.class_id);
+        let reference_places = f.reference.map(|class| places_of(&self.frame, &others, class)).unwrap_or_default();
         // The class vote: does another class's box (and none of the
         // target's) stand where the unconfirmed candidate projects?
         let rival = f.under_vote()
@@ -866,6 +948,9 @@ impl Mission {
             }
             f.new_track();
         }
+        // Where the object the target is described by stands, for
+        // `by_reference` now and in later frames.
+        remember_reference(f, reference_places);
         let Some(f) = self.find() else { return self.hold() };
         if boxes.is_empty() {
             return self.observed(p, None);
@@ -873,6 +958,15 @@ impl Mission {
         if !f.person.is_empty() {
             let name = f.person.clone();
             return self.call(Pending::FindIdentified { boxes: boxes.clone() }, Request::Identify { boxes, name });
+        }
+        if let Some((b, switch)) = by_reference(f, &self.frame, &boxes) {
+            let b = b.clone();
+            if switch {
+                let Some(f) = self.find_mut() else { return self.hold() };
+                tracing::debug!(target = %f.target, "another instance stands nearer the reference: new candidate");
+                f.new_track();
+            }
+            return self.locate(b, String::new(), 0.0);
         }
         match choose_box(f, &self.frame, &boxes) {
             Some(b) => {
