@@ -87,6 +87,9 @@ fn main() -> anyhow::Result<()> {
     let mut latencies = Vec::with_capacity(cases.len());
     let mut produced_by: BTreeMap<String, usize> = BTreeMap::new();
     let mut misses = Vec::new();
+    // Answers the backend produced itself (not the rules' fallback), and how
+    // many of those were right.
+    let (mut own, mut own_right) = (0usize, 0usize);
     for (i, case) in cases.iter().enumerate() {
         let t = Instant::now();
         let planned = planner.plan(&case.instruction, &backend)?;
@@ -94,6 +97,10 @@ fn main() -> anyhow::Result<()> {
         *produced_by.entry(planned.backend.clone()).or_default() += 1;
         let verdict = corpus::judge(&case.expected, &planned);
         tally.add(&case.category, verdict.is_ok());
+        if planned.backend != "rules" {
+            own += 1;
+            own_right += usize::from(verdict.is_ok());
+        }
         if let Err(why) = verdict {
             misses.push(format!(
                 "{} {:?} [{}]\n    got  {}\n    why  {why}",
@@ -123,6 +130,9 @@ fn main() -> anyhow::Result<()> {
     );
     let produced: Vec<String> = produced_by.iter().map(|(b, n)| format!("{b} {n}")).collect();
     println!("answers produced by: {}", produced.join(", "));
+    if backend != "rules" {
+        println!("the backend's own answers: {own}, of which right: {own_right}");
+    }
     if show_misses {
         println!("{} misses:\n{}", misses.len(), misses.join("\n"));
     }
