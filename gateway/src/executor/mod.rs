@@ -39,6 +39,33 @@ impl Tick {
     }
 }
 
+/// Runs one decision of the state machine. A panic there is a bug in the
+/// gateway; it must not take the robot's actor (and every later mission on
+/// that robot) down with it, nor leave the mission running with nobody
+/// driving it: the mission fails, saying so, and the robot is stopped.
+fn guarded(machine: &mut Mission, decide: impl FnOnce(&mut Mission) -> Next) -> Next {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| decide(machine))) {
+        Ok(next) => next,
+        Err(panic) => {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "a panic".into());
+            tracing::error!("the executor failed: {what}");
+            machine.finish(
+                model::Outcome::Failed,
+                format!("the gateway's executor failed ({what}); the robot was stopped. This is a bug: please report it with the mission id"),
+            );
+            Next::Done(machine::Command {
+                twist: model::Twist::ZERO,
+                active: false,
+                finished: Some(model::Outcome::Failed),
+            })
+        }
+    }
+}
+
 /// One mission on one robot: the state machine and its trace spans.
 pub struct MissionRun {
     pub mission_id: String,
@@ -107,7 +134,8 @@ impl MissionRun {
             tracing::info_span!(parent: &parent, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
         let robot_id = self.robot_id.clone();
         let mut stages = grpc::Stages { pipeline: ctx.pipeline, robot_id: &robot_id, frame, no_go: Vec::new() };
-        let mut next = self.machine.on_frame(ctx.params, grpc::frame_from_proto(frame, sf.truth.as_ref()));
+        let frame_in = grpc::frame_from_proto(frame, sf.truth.as_ref());
+        let mut next = guarded(&mut self.machine, |m| m.on_frame(ctx.params, frame_in));
         let command = loop {
             let request = match next {
                 Next::Done(command) => break command,
@@ -122,10 +150,10 @@ impl MissionRun {
                 _ => cycle.clone(),
             };
             next = match stages.call(request).instrument(span).await {
-                Ok(reply) => self.machine.on_reply(ctx.params, reply),
+                Ok(reply) => guarded(&mut self.machine, |m| m.on_reply(ctx.params, reply)),
                 Err(failure) => {
                     tracing::warn!(parent: &cycle, mission = %self.mission_id, "holding the robot: {failure}");
-                    self.machine.on_stage_error(failure)
+                    guarded(&mut self.machine, |m| m.on_stage_error(failure))
                 }
             };
         };
@@ -180,5 +208,33 @@ impl MissionRun {
     pub fn trace_id(&self) -> String {
         use opentelemetry::trace::TraceContextExt;
         self.span.context().span().span_context().trace_id().to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use model::{Event, Outcome, Twist};
+
+    #[test]
+    fn a_panic_in_the_state_machine_fails_the_mission_and_stops_the_robot() {
+        let mut m = Mission::new("m-1".into(), "go".into(), Vec::new(), None);
+        let next = guarded(&mut m, |_| panic!("index out of bounds"));
+        let Next::Done(command) = next else { panic!("a command is returned") };
+        assert_eq!((command.twist, command.active, command.finished), (Twist::ZERO, false, Some(Outcome::Failed)));
+        let finished: Vec<_> = m
+            .take_events()
+            .into_iter()
+            .filter_map(|e| match e.event {
+                Event::Finished { outcome, reason, .. } => Some((outcome, reason)),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(finished.len(), 1);
+        assert_eq!(finished[0].0, Outcome::Failed);
+        assert!(
+            finished[0].1.contains("index out of bounds") && finished[0].1.contains("robot was stopped"),
+            "{finished:?}"
+        );
     }
 }
