@@ -21,21 +21,15 @@ async fn the_chair_next_to_the_table_is_the_one_reached() {
     let out = tempfile::tempdir().unwrap();
     let args = vlnav_eval::EvalArgs {
         suite: std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/relations/suite.toml"),
-        trials: None,
         seed: 3,
-        only_trials: Vec::new(),
-        scenarios: Vec::new(),
         modes: vec![vlnav_eval::metrics::Mode::Hybrid],
         out: out.path().to_path_buf(),
         jobs: 2,
-        width: None,
-        height: None,
-        frame_rate: 5.0,
         plots: 0,
         stall_timeout_s: 120.0,
         no_progress: true,
         perception: PerceptionMode::Oracle,
-        beside: None,
+        ..vlnav_eval::EvalArgs::default()
     };
     let report = vlnav_eval::run_eval(args, t.eval_target()).await.expect("the evaluation runs");
     assert_eq!(report.records.len(), 2, "two trials");

@@ -517,23 +517,25 @@ fn centred_on(b: &Detection, u: f32, v: f32) -> bool {
     (b.x_min + qx..=b.x_max - qx).contains(&u) && (b.y_min + qy..=b.y_max - qy).contains(&v)
 }
 
-/// Where an object stands on the floor: the ground under the middle of its
-/// box's bottom edge (`base_link`, metres).
-fn footprint(projector: &Projector, b: &Detection) -> Option<Vector2<f64>> {
+/// Where an object stands on the floor (`odom`, metres): the ground under
+/// the middle of its box's bottom edge, seen from this frame's pose.
+fn footprint(frame: &Frame, projector: &Projector, b: &Detection) -> Option<Vector2<f64>> {
     let u = (b.x_min + b.x_max) as f64 / 2.0;
-    projector.ground_point(u, b.y_max as f64).map(|g| g.xy())
+    projector.ground_point(u, b.y_max as f64).map(|g| frame.pose.transform(&g.xy()))
 }
 
 /// Where this frame's boxes of class `class` stand (odom footprints).
 fn places_of(frame: &Frame, boxes: &[Detection], class: i32) -> Vec<Vector2<f64>> {
     let Some(camera) = frame.camera.as_ref() else { return Vec::new() };
     let projector = Projector::new(camera);
-    boxes
-        .iter()
-        .filter(|b| b.class_id == class)
-        .filter_map(|b| footprint(&projector, b))
-        .map(|g| frame.pose.transform(&g))
-        .collect()
+    boxes.iter().filter(|b| b.class_id == class).filter_map(|b| footprint(frame, &projector, b)).collect()
+}
+
+/// The index of the box whose centre is nearest `(cx, cy)`, the instance
+/// tracked so far.
+fn nearest_to(boxes: &[Detection], (cx, cy): (f32, f32)) -> Option<usize> {
+    let d = |b: &Detection| (b.center().0 - cx).hypot(b.center().1 - cy);
+    (0..boxes.len()).min_by(|&i, &j| d(&boxes[i]).total_cmp(&d(&boxes[j])))
 }
 
 /// Remembers where reference boxes stood.
@@ -562,16 +564,13 @@ fn by_reference<'a>(f: &FindRun, frame: &Frame, boxes: &'a [Detection]) -> Optio
     let gaps = boxes
         .iter()
         .map(|b| {
-            let at = frame.pose.transform(&footprint(&projector, b)?);
+            let at = footprint(frame, &projector, b)?;
             f.reference_at.iter().map(|a| (a - at).norm()).min_by(f64::total_cmp)
         })
         .collect::<Option<Vec<f64>>>()?;
     let best = (0..boxes.len()).min_by(|&i, &j| gaps[i].total_cmp(&gaps[j]))?;
-    let Some((cx, cy)) = f.last_center else { return Some((&boxes[best], false)) };
-    let current = (0..boxes.len()).min_by(|&i, &j| {
-        let d = |k: usize| (boxes[k].center().0 - cx).hypot(boxes[k].center().1 - cy);
-        d(i).total_cmp(&d(j))
-    })?;
+    let Some(last) = f.last_center else { return Some((&boxes[best], false)) };
+    let current = nearest_to(boxes, last)?;
     if current == best || gaps[current] - gaps[best] <= REFERENCE_MARGIN_M {
         Some((&boxes[current], false))
     } else {
@@ -590,11 +589,7 @@ fn choose_box<'a>(f: &FindRun, frame: &Frame, boxes: &'a [Detection]) -> Option<
         }
     }
     match f.last_center {
-        Some((cx, cy)) => boxes.iter().min_by(|a, b| {
-            let da = (a.center().0 - cx).hypot(a.center().1 - cy);
-            let db = (b.center().0 - cx).hypot(b.center().1 - cy);
-            da.total_cmp(&db)
-        }),
+        Some(last) => nearest_to(boxes, last).map(|i| &boxes[i]),
         None => boxes.iter().max_by(|a, b| a.score.total_cmp(&b.score)),
     }
 }
