@@ -54,8 +54,9 @@ impl Gateway {
         let hub = Hub::open(store)?;
         let pipeline = Pipeline::connect(opts)?;
         let tokens = opts.tokens_file.as_deref().map(TokenStore::open).transpose()?;
+        let viz = crate::viz::Viz::start(&opts.view, &opts.data_dir, hub.clone())?;
         Ok(Self {
-            fleet: Fleet::new(hub, pipeline, opts.executor.clone()),
+            fleet: Fleet::new(hub, pipeline, opts.executor.clone(), viz),
             auth: AuthLayer::new(tokens),
             robot_certs: false,
         })
@@ -65,6 +66,9 @@ impl Gateway {
     /// the gateway's state, so its mission store is closed when this returns.
     pub async fn close(self) {
         self.fleet.close();
+        // Every recording handed over so far is written and its file finished.
+        let viz = self.fleet.viz().clone();
+        let _ = tokio::task::spawn_blocking(move || viz.flush()).await;
         for _ in 0..250 {
             if Arc::strong_count(&self.fleet) <= 1 {
                 break;

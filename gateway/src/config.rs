@@ -32,6 +32,9 @@ pub struct GatewayOptions {
     pub stage_tls: vlnav_runtime::security::ClientTlsArgs,
     #[command(flatten)]
     pub executor: ExecutorParams,
+    /// The live view and the mission recordings (docs/observability.md).
+    #[command(flatten)]
+    pub view: crate::viz::ViewOptions,
 }
 
 /// Mission-executor parameters. Durations are sensor time.
@@ -131,6 +134,7 @@ impl GatewayOptions {
             tokens_file: None,
             stage_tls: Default::default(),
             executor: ExecutorParams::default(),
+            view: crate::viz::ViewOptions::off(),
         }
     }
 }

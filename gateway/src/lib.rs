@@ -9,6 +9,7 @@
 //! - [`hub`]: mission records, event logs and watchers, persisted in [`store`];
 //! - [`robot`]: the per-robot actor that owns the attach stream and the executor;
 //! - [`auth`]: bearer tokens, roles and the tower layer that checks them;
+//! - [`viz`]: the live view (Foxglove WebSocket) and every mission's MCAP recording;
 //! - [`api`]: the thin tonic layer of MissionService and FleetService.
 
 pub mod api;
@@ -20,5 +21,6 @@ pub mod hub;
 pub mod pipeline;
 pub mod robot;
 pub mod store;
+pub mod viz;
 
 pub use config::GatewayOptions;

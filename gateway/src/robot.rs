@@ -15,9 +15,10 @@ use vlnav_proto::v1::{
 use vlnav_runtime::actor::Mailbox;
 
 use crate::config::ExecutorParams;
-use crate::executor::{Ctx, MissionRun};
+use crate::executor::{Ctx, MissionRun, Seen};
 use crate::hub::Hub;
 use crate::pipeline::Pipeline;
+use crate::viz::{FrameView, MissionView, Viz};
 
 pub type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
 
@@ -75,12 +76,22 @@ pub struct Fleet {
     hub: Arc<Hub>,
     pipeline: Pipeline,
     params: ExecutorParams,
+    viz: Viz,
     next_conn: std::sync::atomic::AtomicU64,
 }
 
 impl Fleet {
-    pub fn new(hub: Arc<Hub>, pipeline: Pipeline, params: ExecutorParams) -> Arc<Self> {
-        Arc::new(Self { robots: Mutex::new(HashMap::new()), hub, pipeline, params, next_conn: 1.into() })
+    pub fn new(hub: Arc<Hub>, pipeline: Pipeline, params: ExecutorParams, viz: Viz) -> Arc<Self> {
+        Arc::new(Self { robots: Mutex::new(HashMap::new()), hub, pipeline, params, viz, next_conn: 1.into() })
+    }
+
+    /// The live view and recordings.
+    pub fn viz(&self) -> &Viz {
+        &self.viz
+    }
+
+    fn ctx(&self) -> Ctx<'_> {
+        Ctx { pipeline: &self.pipeline, params: &self.params, hub: &self.hub, viz: &self.viz }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, RobotEntry>> {
@@ -325,6 +336,14 @@ impl RobotActor {
                     _ => {
                         self.reserved = None;
                         let id = run.mission_id.clone();
+                        if let Some(path) =
+                            self.fleet.viz.start_mission(&self.robot_id, &id, run.plan_proto(), run.instruction())
+                        {
+                            let file = path.display().to_string();
+                            if let Err(e) = self.fleet.hub.record(&id, 0.0, None, |m| m.recordings = vec![file]) {
+                                tracing::warn!(mission = %id, "cannot note the mission's recording: {e}");
+                            }
+                        }
                         self.update(|i| i.active_mission_id = id);
                         self.run = Some(run);
                         Ok(())
@@ -335,10 +354,10 @@ impl RobotActor {
             RobotMsg::Cancel { mission_id, reply } => {
                 let r = match self.run.as_mut() {
                     Some(run) if run.mission_id == mission_id => {
-                        let ctx =
-                            Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
+                        let ctx = self.fleet.ctx();
                         clear_active(&self.info);
                         run.cancel(&ctx);
+                        self.fleet.viz.end_mission(&self.robot_id, &mission_id);
                         self.run = None;
                         Ok(())
                     }
@@ -352,8 +371,7 @@ impl RobotActor {
             RobotMsg::Answer { mission_id, answer, reply } => {
                 let r = match self.run.as_mut() {
                     Some(run) if run.mission_id == mission_id => {
-                        let ctx =
-                            Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
+                        let ctx = self.fleet.ctx();
                         run.answer(&ctx, &answer).await
                     }
                     _ => Err(Status::failed_precondition(format!(
@@ -379,11 +397,22 @@ impl RobotActor {
             i.last_stamp = stamp;
             i.last_odometry = f.odom;
         });
-        let ctx = Ctx { pipeline: &self.fleet.pipeline, params: &self.fleet.params, hub: &self.fleet.hub };
-        let (twist, active, span, mission_id) = match self.run.as_mut() {
+        let fleet = self.fleet.clone();
+        let ctx = fleet.ctx();
+        let (twist, active, span, mission_id, seen, mission) = match self.run.as_mut() {
             Some(run) => {
                 let tick = run.on_frame(&ctx, &frame).await;
                 let id = run.mission_id.clone();
+                let mission = fleet.viz.is_on().then(|| MissionView {
+                    mission_id: id.clone(),
+                    step: run.step().cloned(),
+                    steps: run.plan_len(),
+                    state: match tick.finished {
+                        Some(state) => format!("{:?}", state).to_lowercase(),
+                        None if run.is_awaiting() => "awaiting answer".into(),
+                        None => "running".into(),
+                    },
+                });
                 if tick.finished.is_some() {
                     // The robot is free before anyone can read that the mission ended.
                     clear_active(&self.info);
@@ -392,10 +421,11 @@ impl RobotActor {
                 } else {
                     run.flush(&ctx);
                 }
-                (tick.twist, tick.active, tick.span, id)
+                (tick.twist, tick.active, tick.span, id, tick.seen, mission)
             }
-            None => (Twist2D::default(), false, tracing::Span::none(), String::new()),
+            None => (Twist2D::default(), false, tracing::Span::none(), String::new(), Seen::default(), None),
         };
+        let finished = mission.as_ref().is_some_and(|_| self.run.is_none());
         self.command_seq += 1;
         let announcement = (mission_id != self.announced).then(|| {
             self.announced = mission_id.clone();
@@ -425,9 +455,21 @@ impl RobotActor {
             }
             let forward = tracing::info_span!(parent: &span, "edge-forward", robot.id = %self.robot_id);
             if span.is_none() {
-                let _ = tx.send(Ok(cmd)).await;
-            } else if tx.send(Ok(cmd)).instrument(forward).await.is_err() {
+                let _ = tx.send(Ok(cmd.clone())).await;
+            } else if tx.send(Ok(cmd.clone())).instrument(forward).await.is_err() {
                 tracing::warn!(robot = %self.robot_id, "the edge agent went away before its command was sent");
+            }
+        }
+        // The command has left: the view gets the frame (moved, not copied).
+        if fleet.viz.is_on() {
+            let command = match cmd.kind {
+                Some(gateway_command::Kind::Velocity(v)) => v,
+                _ => VelocityCommand::default(),
+            };
+            let mission_id = mission.as_ref().map(|m| m.mission_id.clone());
+            fleet.viz.frame(FrameView { robot_id: self.robot_id.clone(), frame, command, mission, seen });
+            if finished && let Some(id) = mission_id {
+                fleet.viz.end_mission(&self.robot_id, &id);
             }
         }
     }

@@ -22,6 +22,8 @@ pub struct Stages<'a> {
     pub frame: &'a pb::RgbdFrame,
     /// This frame's no-go points from the segmenter, for its local-planner call.
     pub no_go: Vec<pb::Point3>,
+    /// The primitive the local planner chose on this frame, base_link.
+    pub path: Vec<pb::Point3>,
 }
 
 impl Stages<'_> {
@@ -137,6 +139,7 @@ impl Stages<'_> {
                     Ok(pb::LocalPlanStatus::NoProgress) => DriveStatus::NoProgress,
                     _ => DriveStatus::Unspecified,
                 };
+                self.path = plan.path;
                 Ok(Reply::Driven(DriveAnswer {
                     status,
                     cmd: plan.cmd.map_or(Twist::ZERO, |c| Twist { linear: c.linear, angular: c.angular }),

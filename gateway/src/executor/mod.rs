@@ -20,6 +20,8 @@ pub struct Ctx<'a> {
     pub pipeline: &'a Pipeline,
     pub params: &'a ExecutorParams,
     pub hub: &'a Hub,
+    /// The live view and recordings: they get the mission's events too.
+    pub viz: &'a crate::viz::Viz,
 }
 
 /// What the executor tells the robot after a frame.
@@ -31,11 +33,63 @@ pub struct Tick {
     pub finished: Option<MissionState>,
     /// The control-cycle span of this frame (parent of the edge-forward span).
     pub span: tracing::Span,
+    /// What the cycle perceived and decided, for the live view and recordings.
+    pub seen: Seen,
 }
 
 impl Tick {
     fn idle() -> Self {
-        Tick { twist: Twist2D::default(), active: false, finished: None, span: tracing::Span::none() }
+        Tick {
+            twist: Twist2D::default(),
+            active: false,
+            finished: None,
+            span: tracing::Span::none(),
+            seen: Seen::default(),
+        }
+    }
+}
+
+/// What one control cycle perceived and decided, gathered from the state
+/// machine's requests and the stages' answers; the live view and the mission
+/// recordings draw it (`crate::viz`, docs/observability.md).
+#[derive(Clone, Debug, Default)]
+pub struct Seen {
+    /// Every box the detector returned on this frame.
+    pub boxes: Vec<model::Detection>,
+    /// The box handed to the estimator: the target as the executor tracks it.
+    pub target: Option<model::Detection>,
+    /// The segmenter's virtual obstacle points, `base_link`.
+    pub no_go: Vec<[f64; 3]>,
+    /// The estimator's fused target, `odom`.
+    pub fused_target: Option<[f64; 3]>,
+    /// The goal driven toward on this frame, `odom`.
+    pub goal: Option<model::Goal>,
+    /// The local planner's answer and its chosen primitive (`base_link`).
+    pub drive: Option<model::DriveAnswer>,
+    pub path: Vec<[f64; 2]>,
+    /// A plan step began on this frame (odometry is re-anchored there).
+    pub step_started: bool,
+}
+
+impl Seen {
+    fn request(&mut self, request: &Request) {
+        match request {
+            Request::StartStep { .. } => self.step_started = true,
+            Request::Locate { detection, .. } => self.target = Some(detection.clone()),
+            Request::Drive { goal } => self.goal = Some(*goal),
+            _ => {}
+        }
+    }
+
+    fn reply(&mut self, reply: &machine::Reply) {
+        match reply {
+            machine::Reply::Perceived { boxes } => self.boxes = boxes.clone(),
+            machine::Reply::Located(estimate) => {
+                self.fused_target = estimate.fused_target.map(|p| [p.x, p.y, p.z]);
+            }
+            machine::Reply::Driven(answer) => self.drive = Some(*answer),
+            _ => {}
+        }
     }
 }
 
@@ -74,6 +128,9 @@ pub struct MissionRun {
     span: tracing::Span,
     /// The span of the step under way.
     step_span: tracing::Span,
+    /// The step under way: its index and description.
+    step: Option<(u32, String)>,
+    instruction: String,
 }
 
 impl MissionRun {
@@ -89,12 +146,34 @@ impl MissionRun {
         let plan = plan.iter().map(grpc::step_from_proto).collect();
         let question = awaiting.as_ref().map(grpc::question_from_proto);
         Self {
-            machine: Mission::new(mission_id.clone(), instruction, plan, question),
+            machine: Mission::new(mission_id.clone(), instruction.clone(), plan, question),
+            instruction,
             mission_id,
             robot_id,
             span,
             step_span: tracing::Span::none(),
+            step: None,
         }
+    }
+
+    /// The step under way (index, description), once one has started.
+    pub fn step(&self) -> Option<&(u32, String)> {
+        self.step.as_ref()
+    }
+
+    /// The instruction as the user gave it.
+    pub fn instruction(&self) -> &str {
+        &self.instruction
+    }
+
+    /// The plan being executed, as the planner's contract states it.
+    pub fn plan_proto(&self) -> vlnav_proto::v1::ActionPlan {
+        vlnav_proto::v1::ActionPlan { steps: self.machine.plan().iter().map(grpc::step_to_proto).collect() }
+    }
+
+    /// The plan's length.
+    pub fn plan_len(&self) -> usize {
+        self.machine.plan().len()
     }
 
     pub fn is_awaiting(&self) -> bool {
@@ -105,14 +184,26 @@ impl MissionRun {
     /// `on_frame` leaves its last frame's events for the robot's actor to
     /// flush once it has updated what it reports of the robot.
     pub fn flush(&mut self, ctx: &Ctx<'_>) {
-        self.record(ctx.hub);
+        self.record(ctx);
     }
 
-    fn record(&mut self, hub: &Hub) {
+    fn record(&mut self, ctx: &Ctx<'_>) {
         for stamped in self.machine.take_events() {
             let (kind, change) = grpc::event_to_proto(stamped.event);
-            if let Err(e) = hub.record(&self.mission_id, stamped.stamp, Some(kind), change) {
-                tracing::error!(mission = %self.mission_id, "cannot record event: {e}");
+            let shown = ctx.viz.is_on().then(|| kind.clone());
+            match ctx.hub.record(&self.mission_id, stamped.stamp, Some(kind), change) {
+                Ok(_) => {
+                    if let Some(kind) = shown {
+                        let event = vlnav_proto::v1::MissionEvent {
+                            mission_id: self.mission_id.clone(),
+                            seq: 0,
+                            stamp: stamped.stamp,
+                            kind: Some(kind),
+                        };
+                        ctx.viz.event(&self.robot_id, event);
+                    }
+                }
+                Err(e) => tracing::error!(mission = %self.mission_id, "cannot record event: {e}"),
             }
         }
     }
@@ -120,7 +211,7 @@ impl MissionRun {
     /// Ends the mission: the user cancelled it.
     pub fn cancel(&mut self, ctx: &Ctx<'_>) {
         self.machine.cancel();
-        self.record(ctx.hub);
+        self.record(ctx);
     }
 
     /// One sensor frame in, one velocity command out.
@@ -133,7 +224,9 @@ impl MissionRun {
         let cycle =
             tracing::info_span!(parent: &parent, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
         let robot_id = self.robot_id.clone();
-        let mut stages = grpc::Stages { pipeline: ctx.pipeline, robot_id: &robot_id, frame, no_go: Vec::new() };
+        let mut stages =
+            grpc::Stages { pipeline: ctx.pipeline, robot_id: &robot_id, frame, no_go: Vec::new(), path: Vec::new() };
+        let mut seen = Seen::default();
         let frame_in = grpc::frame_from_proto(frame, sf.truth.as_ref());
         let mut next = guarded(&mut self.machine, |m| m.on_frame(ctx.params, frame_in));
         let command = loop {
@@ -141,27 +234,35 @@ impl MissionRun {
                 Next::Done(command) => break command,
                 Next::Call(request) => request,
             };
-            self.record(ctx.hub);
+            self.record(ctx);
+            seen.request(&request);
             let span = match &request {
                 Request::StartStep { index, action, desc, .. } => {
+                    self.step = Some((*index, desc.clone()));
                     self.step_span = tracing::info_span!(parent: &self.span, "step", step.index = index, step.action = ?action, step.desc = %desc);
                     self.step_span.clone()
                 }
                 _ => cycle.clone(),
             };
             next = match stages.call(request).instrument(span).await {
-                Ok(reply) => guarded(&mut self.machine, |m| m.on_reply(ctx.params, reply)),
+                Ok(reply) => {
+                    seen.reply(&reply);
+                    guarded(&mut self.machine, |m| m.on_reply(ctx.params, reply))
+                }
                 Err(failure) => {
                     tracing::warn!(parent: &cycle, mission = %self.mission_id, "holding the robot: {failure}");
                     guarded(&mut self.machine, |m| m.on_stage_error(failure))
                 }
             };
         };
+        seen.no_go = stages.no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
+        seen.path = stages.path.iter().map(|p| [p.x, p.y]).collect();
         Tick {
             twist: Twist2D { linear: command.twist.linear, angular: command.twist.angular },
             active: command.active,
             finished: command.finished.map(grpc::outcome_to_proto),
             span: cycle,
+            seen,
         }
     }
 
@@ -200,7 +301,7 @@ impl MissionRun {
         }?
         .into_inner();
         let result = self.machine.on_planner_reply(answer, grpc::planner_reply(response)?);
-        self.record(ctx.hub);
+        self.record(ctx);
         Ok(result.map(|plan| plan.iter().map(grpc::step_to_proto).collect()).map_err(|q| grpc::question_to_proto(&q)))
     }
 

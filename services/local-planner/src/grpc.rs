@@ -108,6 +108,14 @@ fn reply_to_proto(r: StepReply) -> pb::PlanStepResponse {
         heading_error: o.heading_error,
         obstacle_points: r.obstacle_cells as u32,
         free_paths: o.free_paths as u32,
+        path: o
+            .selection
+            .as_ref()
+            .map(|s| {
+                // Every 10th sample: the library is sampled every 0.01 m of radius.
+                s.points.iter().step_by(10).map(|p| pb::Point3 { x: p.x, y: p.y, z: 0.0 }).collect()
+            })
+            .unwrap_or_default(),
     }
 }
 

@@ -111,6 +111,9 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             let telemetry = telemetry::init("vlnav")?;
             let stack = up(&args).await?;
             eprintln!("vlnav is up: gateway on {} (Ctrl-C to stop)", stack.gateway_uri());
+            if let Some(addr) = stack.live_view_addr() {
+                eprintln!("{}", live_view_hint(addr));
+            }
             match &stack.security {
                 Some(sec) => eprintln!(
                     "TLS and tokens on every link; credentials in {}\n  vlnav mission \"move 2 m ahead\"    (picks them up)\n  {}",
@@ -145,6 +148,9 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             trace_receiver(&args, &receiver).await?;
             let telemetry = telemetry::init("vlnav")?;
             let stack = up(&args).await?;
+            if let Some(addr) = stack.live_view_addr() {
+                eprintln!("{}", live_view_hint(addr));
+            }
             let mission_args = MissionArgs {
                 text: Some(instruction),
                 audio: None,
@@ -220,6 +226,14 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
     }
+}
+
+/// How to open the live view.
+fn live_view_hint(addr: std::net::SocketAddr) -> String {
+    format!(
+        "live view: ws://{addr} — in Foxglove or Lichtblick, Open connection → Foxglove WebSocket → ws://{addr}, \
+         then import the layout deploy/foxglove/vlnav-layout.json (docs/observability.md)"
+    )
 }
 
 /// Waits (up to 30 s) until the robot has attached to the gateway.

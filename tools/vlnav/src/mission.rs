@@ -112,6 +112,13 @@ pub fn summarise(m: &Mission) -> String {
     if !m.trace_id.is_empty() {
         out += &format!("\n  trace {}", m.trace_id);
     }
+    for (i, file) in m.recordings.iter().enumerate() {
+        let what = if i == 0 { "recording" } else { "  continued" };
+        out += &format!("\n  {what} {file}");
+    }
+    if !m.recordings.is_empty() {
+        out += &format!("\n  (open in Foxglove or Lichtblick, or replay: vlnav replay {})", m.recordings[0]);
+    }
     out
 }
 

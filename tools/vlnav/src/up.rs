@@ -49,6 +49,14 @@ pub struct UpArgs {
     /// who reaches the gateway can then drive the robot.
     #[arg(long, env = "VLNAV_INSECURE")]
     pub insecure: bool,
+    /// Where the live view (Foxglove WebSocket protocol; open it in Foxglove
+    /// or Lichtblick with deploy/foxglove/vlnav-layout.json) listens, or `off`.
+    /// Loopback only (docs/observability.md).
+    #[arg(long, env = "VLNAV_LIVE_VIEW", default_value = "127.0.0.1:8765")]
+    pub live_view: String,
+    /// Record every mission to MCAP in `<data-dir>/recordings`.
+    #[arg(long, env = "VLNAV_RECORD", default_value_t = true, action = clap::ArgAction::Set)]
+    pub record: bool,
 }
 
 impl Default for UpArgs {
@@ -64,6 +72,9 @@ impl Default for UpArgs {
             perception: PerceptionMode::Realistic,
             data_dir: PathBuf::from(".vlnav"),
             insecure: false,
+            // Tests and the evaluation opt in; the command line's defaults serve and record.
+            live_view: "off".into(),
+            record: false,
         }
     }
 }
@@ -136,6 +147,11 @@ pub struct Stack {
 }
 
 impl Stack {
+    /// Where the live view listens (`None`: off).
+    pub fn live_view_addr(&self) -> Option<SocketAddr> {
+        self.gateway.fleet().viz().live_addr()
+    }
+
     pub fn gateway_uri(&self) -> String {
         let scheme = if self.security.is_some() { "https" } else { "http" };
         format!("{scheme}://{}", self.gateway_addr)
@@ -337,6 +353,8 @@ pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
     };
 
     let mut opts = GatewayOptions::loopback(&stage_ports, args.data_dir.clone());
+    opts.view.live_view = args.live_view.clone();
+    opts.view.record = args.record;
     let gateway_cfg = Gateway::server_config(&cfg);
     if let Some(sec) = &security {
         opts = opts.over_tls(sec.pki.client_args(Some((sec.pki.gateway_cert(), sec.pki.gateway_key()))));

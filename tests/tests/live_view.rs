@@ -1,0 +1,139 @@
+//! What the robot saw, through third-party clients: a live-view client
+//! written against the Foxglove WebSocket protocol's published library (npm
+//! `@foxglove/ws-protocol`) subscribes to a running stack's topics during a
+//! mission, and the mission's MCAP recording is read back with the `mcap`
+//! Python library and its protobuf decoder (docs/observability.md).
+
+use std::process::{Command, Stdio};
+use std::time::Duration;
+
+use vlnav_e2e::{TestStack, repo_root, tool};
+use vlnav_proto::v1::{MissionState, SubmitMissionRequest, submit_mission_request::Instruction};
+
+const ROBOT: &str = "husky-1";
+
+fn node_client(url: &str) -> std::process::Child {
+    let modules = repo_root().join(".node/node_modules");
+    assert!(
+        modules.join("@foxglove/ws-protocol").exists(),
+        "{} lacks @foxglove/ws-protocol: run deploy/setup-tools.sh (or `make test`) first",
+        modules.display()
+    );
+    Command::new("node")
+        .arg(repo_root().join("tests/tests/live_view/client.cjs"))
+        .args([url, ROBOT, "120", "5"])
+        .env("NODE_PATH", &modules)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("node runs (Debian's nodejs, deploy/setup-system.sh)")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_library() {
+    let t = TestStack::start(|a| {
+        a.live_view = "127.0.0.1:0".into();
+        a.record = true;
+    })
+    .await;
+    let addr = t.stack.live_view_addr().expect("the live view is on");
+    let client = node_client(&format!("ws://{addr}"));
+
+    let submitted = t
+        .missions()
+        .await
+        .submit_mission(SubmitMissionRequest {
+            robot_id: ROBOT.into(),
+            instruction: Some(Instruction::Text("go to the bicycle".into())),
+            dry_run: false,
+        })
+        .await
+        .expect("SubmitMission")
+        .into_inner();
+    let (_, mission) = t.follow(&submitted.mission_id, Duration::from_secs(240)).await;
+    assert_eq!(mission.state, MissionState::Succeeded as i32, "{}", mission.reason);
+
+    // The live view, as a client of the protocol's library saw it.
+    let out = tokio::task::spawn_blocking(move || client.wait_with_output()).await.unwrap().expect("node client");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "live-view client: {}\n{stdout}", String::from_utf8_lossy(&out.stderr));
+    let live: serde_json::Value = serde_json::from_str(stdout.trim()).expect("the client prints JSON");
+    assert_eq!(live["server"], "vlnav");
+    for (topic, schema) in [
+        ("camera/image", "foxglove.CompressedImage"),
+        ("camera/annotations", "foxglove.ImageAnnotations"),
+        ("camera/depth", "foxglove.RawImage"),
+        ("segmenter/no_go", "foxglove.PointCloud"),
+        ("scene", "foxglove.SceneUpdate"),
+        ("tf", "foxglove.FrameTransforms"),
+        ("cmd_vel", "vlnav.v1.VelocityCommand"),
+        ("mission/status", "vlnav.MissionStatus"),
+    ] {
+        let seen = &live["topics"][format!("/{ROBOT}/{topic}")];
+        assert_eq!(seen["schema"], schema, "{topic}: {live}");
+        assert!(seen["count"].as_u64().unwrap_or(0) >= 5, "{topic} delivered too little: {live}");
+    }
+    assert!(live["topics"][format!("/{ROBOT}/camera/image")]["bytes"].as_u64().unwrap() > 5 * 5_000, "{live}");
+    assert_eq!(live["status"]["mission_id"], submitted.mission_id.as_str(), "{live}");
+
+    // The recording: named by GetMission, finished, and readable by a third party.
+    assert_eq!(mission.recordings.len(), 1, "{:?}", mission.recordings);
+    let file = std::path::PathBuf::from(&mission.recordings[0]);
+    assert!(file.starts_with(t.data.path()), "{} is in the gateway's data directory", file.display());
+    t.stack.gateway.fleet().viz().flush();
+    let out = Command::new(tool("python"))
+        .arg(repo_root().join("tests/tests/live_view/check_recording.py"))
+        .arg(&file)
+        .output()
+        .expect("python runs");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "check_recording.py: {}", String::from_utf8_lossy(&out.stderr));
+    let rec: serde_json::Value = serde_json::from_str(stdout.trim()).expect("the checker prints JSON");
+    let topics = &rec["topics"];
+    let facts = &rec["facts"];
+    let metrics = mission.metrics.expect("metrics");
+    let frames = metrics.frames as u64;
+    for (topic, schema, encoding, count) in [
+        ("sensor_frame", "vlnav.v1.SensorFrame", "protobuf", Some(frames)),
+        ("cmd_vel", "vlnav.v1.VelocityCommand", "protobuf", Some(frames)),
+        ("camera/image", "foxglove.CompressedImage", "protobuf", Some(frames)),
+        ("camera/annotations", "foxglove.ImageAnnotations", "protobuf", Some(frames)),
+        ("camera/depth", "foxglove.RawImage", "protobuf", Some(frames)),
+        ("camera/calibration", "foxglove.CameraCalibration", "protobuf", Some(frames)),
+        ("segmenter/no_go", "foxglove.PointCloud", "protobuf", Some(frames)),
+        ("scene", "foxglove.SceneUpdate", "protobuf", Some(frames)),
+        ("tf", "foxglove.FrameTransforms", "protobuf", Some(frames)),
+        ("truth/pose", "foxglove.PoseInFrame", "protobuf", Some(frames)),
+        ("mission/status", "vlnav.MissionStatus", "jsonschema", Some(frames)),
+        ("mission/plan", "vlnav.v1.ActionPlan", "protobuf", Some(1)),
+        ("mission/events", "vlnav.v1.MissionEvent", "protobuf", None),
+    ] {
+        let entry = &topics[format!("/{ROBOT}/{topic}")];
+        assert_eq!(entry["schema"], schema, "{topic}: {rec}");
+        assert_eq!(entry["schema_encoding"], encoding, "{topic}: {rec}");
+        if let Some(n) = count {
+            assert_eq!(entry["count"].as_u64(), Some(n), "{topic}: one message per frame of the mission: {rec}");
+        }
+    }
+    assert_eq!(facts["frames"].as_u64(), Some(frames));
+    assert_eq!(facts["frame_seqs_increasing"], true);
+    assert_eq!(facts["command_mission_ids"], serde_json::json!([submitted.mission_id]));
+    assert_eq!(facts["jpeg_images"].as_u64(), Some(frames), "every camera image is a JPEG");
+    assert!(facts["target_boxes"].as_u64().unwrap() >= 3, "the tracked bicycle is highlighted: {facts}");
+    assert!(facts["labels"].as_array().unwrap().iter().any(|l| l == "TARGET bicycle"), "{facts}");
+    assert_eq!(facts["plan_steps"].as_u64(), Some(1), "{facts}");
+    let events: Vec<&str> = facts["events"].as_array().unwrap().iter().filter_map(|e| e.as_str()).collect();
+    assert_eq!(events.first(), Some(&"step_started"), "{events:?}");
+    assert_eq!(events.last(), Some(&"finished"), "{events:?}");
+    assert!(events.contains(&"target_seen"), "{events:?}");
+    let duration = facts["last_stamp"].as_f64().unwrap() - facts["first_stamp"].as_f64().unwrap();
+    assert!(
+        (duration - metrics.duration_s).abs() < 0.5,
+        "recorded {duration:.1} s of a {:.1} s mission",
+        metrics.duration_s
+    );
+    assert_eq!(facts["metadata"]["vlnav.mission"]["mission_id"], submitted.mission_id.as_str());
+    let states = facts["states"].as_array().expect("mission states");
+    assert_eq!(states.first().and_then(|s| s.as_str()), Some("running"), "{states:?}");
+    assert_eq!(states.last().and_then(|s| s.as_str()), Some("succeeded"), "{states:?}");
+}
