@@ -901,6 +901,107 @@ mod tests {
         assert!(o.live_addr().unwrap_err().to_string().contains("not an address"));
     }
 
+    /// A frame whose depth is noise: about 600 kB that no compressor shrinks.
+    fn noisy_frame(seq: u64) -> pb::SensorFrame {
+        let mut state = seq.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let data_mm = (0..640 * 480 * 2)
+            .map(|_| {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state as u8
+            })
+            .collect();
+        pb::SensorFrame {
+            frame: Some(pb::RgbdFrame {
+                seq,
+                stamp: seq as f64 * 0.1,
+                depth: Some(pb::DepthImage { width: 640, height: 480, data_mm }),
+                ..Default::default()
+            }),
+            truth: None,
+        }
+    }
+
+    #[test]
+    fn a_long_recording_continues_in_new_files_that_the_mission_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let hub = Hub::open(crate::store::Store::open(dir.path()).unwrap()).unwrap();
+        hub.create(pb::Mission { mission_id: "m-1".into(), robot_id: "r1".into(), ..Default::default() }).unwrap();
+        let opts = ViewOptions { live_view: "off".into(), record: true, record_max_mib: 1, ..Default::default() };
+        let viz = Viz::start(&opts, dir.path(), hub.clone()).unwrap();
+        let first = viz.start_mission("r1", "m-1", pb::ActionPlan::default(), "go").unwrap();
+        hub.record("m-1", 0.0, None, |m| m.recordings = vec![first.display().to_string()]).unwrap();
+        for seq in 0..(2 * SIZE_CHECK_EVERY + 1) {
+            let view = FrameView {
+                robot_id: "r1".into(),
+                frame: noisy_frame(seq),
+                command: pb::VelocityCommand::default(),
+                mission: None,
+                seen: Seen::default(),
+            };
+            // Hand frames over no faster than the thread writes them: this
+            // test is about rotation, not about dropping.
+            while viz.inner.as_ref().unwrap().queued.load(Ordering::Relaxed) >= MAX_QUEUED_FRAMES {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+            viz.frame(view);
+        }
+        viz.end_mission("r1", "m-1");
+        viz.flush();
+        let files = hub.get("m-1").unwrap().recordings;
+        assert_eq!(files.len(), 3, "{files:?}");
+        assert!(files[1].ends_with("m-1.part2.mcap") && files[2].ends_with("m-1.part3.mcap"), "{files:?}");
+        let mut frames = 0;
+        for f in &files {
+            let bytes = std::fs::read(f).unwrap();
+            let summary = mcap::Summary::read(&bytes).unwrap().expect("a finished file has a summary");
+            let stats = summary.stats.expect("statistics");
+            assert!(stats.chunk_count > 0, "{f} is chunked");
+            for (id, channel) in &summary.channels {
+                if channel.topic == "/r1/sensor_frame" {
+                    frames += stats.channel_message_counts.get(id).copied().unwrap_or(0);
+                }
+            }
+        }
+        assert_eq!(frames, 2 * SIZE_CHECK_EVERY + 1, "every frame is in one of the files");
+        assert_eq!(viz.dropped_frames(), 0);
+    }
+
+    #[test]
+    fn the_committed_layout_names_only_topics_and_frames_the_view_serves() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../deploy/foxglove/vlnav-layout.json");
+        let layout: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        let ctx = Context::new();
+        let _topics = Topics::new(&ctx, "husky-1");
+        let mut names = Vec::new();
+        fn strings(v: &serde_json::Value, out: &mut Vec<String>) {
+            match v {
+                serde_json::Value::String(s) => out.push(s.clone()),
+                serde_json::Value::Array(a) => a.iter().for_each(|v| strings(v, out)),
+                serde_json::Value::Object(o) => o.iter().for_each(|(k, v)| {
+                    out.push(k.clone());
+                    strings(v, out)
+                }),
+                _ => {}
+            }
+        }
+        strings(&layout, &mut names);
+        let mut checked = 0;
+        for name in names.iter().filter(|n| n.starts_with("/husky-1/")) {
+            let topic = name.split('.').next().unwrap();
+            assert!(
+                ctx.get_channel_by_topic(topic).is_some(),
+                "the layout names {topic}, which the view does not serve"
+            );
+            checked += 1;
+        }
+        assert!(checked >= 8, "the layout shows the robot's topics");
+        for frame in names.iter().filter(|n| n.starts_with("husky-1/")) {
+            assert!(["husky-1/odom", "husky-1/base_link"].contains(&frame.as_str()), "unknown frame {frame}");
+        }
+    }
+
     #[test]
     fn the_scene_forgets_a_goal_that_is_gone() {
         let ctx = Context::new();

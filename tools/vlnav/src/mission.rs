@@ -117,7 +117,7 @@ pub fn summarise(m: &Mission) -> String {
         out += &format!("\n  {what} {file}");
     }
     if !m.recordings.is_empty() {
-        out += &format!("\n  (open in Foxglove or Lichtblick, or replay: vlnav replay {})", m.recordings[0]);
+        out += "\n  (MCAP: open it in Foxglove or Lichtblick with deploy/foxglove/vlnav-layout.json)";
     }
     out
 }
