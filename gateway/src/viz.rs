@@ -54,11 +54,27 @@ pub struct ViewOptions {
     /// A recording continues in a new file once its file reaches this size, MiB.
     #[arg(long, env = "VLNAV_RECORD_MAX_MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..))]
     pub record_max_mib: u64,
+    /// The recordings directory is kept under this size, MiB: the oldest
+    /// finished recordings are deleted when a mission starts (0: keep all).
+    #[arg(long, env = "VLNAV_RECORD_BUDGET_MIB", default_value_t = 20480)]
+    pub record_budget_mib: u64,
+    /// Facts about the deployment written into every recording's
+    /// `vlnav.mission` metadata (for example the perception mode a replay
+    /// must use).
+    #[arg(skip)]
+    pub metadata: Vec<(String, String)>,
 }
 
 impl Default for ViewOptions {
     fn default() -> Self {
-        Self { live_view: "127.0.0.1:8765".into(), live_view_insecure: false, record: true, record_max_mib: 512 }
+        Self {
+            live_view: "127.0.0.1:8765".into(),
+            live_view_insecure: false,
+            record: true,
+            record_max_mib: 512,
+            record_budget_mib: 20480,
+            metadata: Vec::new(),
+        }
     }
 }
 
@@ -148,6 +164,8 @@ impl Viz {
         let queued = Arc::new(AtomicUsize::new(0));
         let thread_queued = queued.clone();
         let max_bytes = opts.record_max_mib.saturating_mul(1 << 20);
+        let metadata = opts.metadata.clone();
+        let budget = opts.record_budget_mib.saturating_mul(1 << 20);
         std::thread::Builder::new().name("vlnav-view".into()).spawn(move || {
             let ctx = Context::new();
             let server = match live {
@@ -175,7 +193,7 @@ impl Viz {
                     None
                 }
             };
-            let mut view = View { ctx, hub, max_bytes, robots: HashMap::new() };
+            let mut view = View { ctx, hub, max_bytes, budget, metadata, robots: HashMap::new() };
             while let Ok(msg) = rx.recv() {
                 if matches!(msg, Msg::Frame(_)) {
                     thread_queued.fetch_sub(1, Ordering::Relaxed);
@@ -277,6 +295,9 @@ struct View {
     ctx: Arc<Context>,
     hub: Arc<Hub>,
     max_bytes: u64,
+    /// Size the recordings directory is kept under (0: unbounded).
+    budget: u64,
+    metadata: Vec<(String, String)>,
     robots: HashMap<String, RobotView>,
 }
 
@@ -424,7 +445,15 @@ impl View {
         match msg {
             Msg::Frame(view) => self.frame(*view),
             Msg::Start { robot_id, mission_id, path, plan, instruction } => {
+                if self.budget > 0
+                    && let Some(dir) = path.parent()
+                {
+                    let open: Vec<PathBuf> =
+                        self.robots.values().filter_map(|r| r.recording.as_ref().map(|r| r.current.clone())).collect();
+                    prune(dir, self.budget, &open);
+                }
                 let ctx = self.ctx.clone();
+                let extra = self.metadata.clone();
                 let robot = self.robot(&robot_id);
                 robot.recording = None;
                 robot.trail.clear();
@@ -450,6 +479,7 @@ impl View {
                     meta.insert("mission_id".to_string(), mission_id.clone());
                     meta.insert("robot_id".to_string(), robot_id.clone());
                     meta.insert("instruction".to_string(), instruction);
+                    meta.extend(extra);
                     if let Err(e) = handle.write_metadata("vlnav.mission", meta) {
                         tracing::warn!(mission = %mission_id, "cannot write the recording's metadata: {e}");
                     }
@@ -673,6 +703,37 @@ impl View {
             {
                 rotate(&ctx, &hub, &robot_id, rec, stamp);
             }
+        }
+    }
+}
+
+/// Deletes the oldest `.mcap` files in `dir` (never one of `open`) until
+/// the rest fit in `budget` bytes.
+fn prune(dir: &Path, budget: u64, open: &[PathBuf]) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    let mut files: Vec<(std::time::SystemTime, u64, PathBuf)> = entries
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().extension().is_some_and(|x| x == "mcap"))
+        .filter_map(|e| {
+            let m = e.metadata().ok()?;
+            Some((m.modified().ok()?, m.len(), e.path()))
+        })
+        .collect();
+    let mut total: u64 = files.iter().map(|f| f.1).sum();
+    files.sort();
+    for (_, len, path) in files {
+        if total <= budget {
+            break;
+        }
+        if open.contains(&path) {
+            continue;
+        }
+        match std::fs::remove_file(&path) {
+            Ok(()) => {
+                total -= len;
+                tracing::info!("deleted the recording {} to keep recordings under the budget", path.display());
+            }
+            Err(e) => tracing::warn!("cannot delete the old recording {}: {e}", path.display()),
         }
     }
 }
@@ -1000,6 +1061,24 @@ mod tests {
         for frame in names.iter().filter(|n| n.starts_with("husky-1/")) {
             assert!(["husky-1/odom", "husky-1/base_link"].contains(&frame.as_str()), "unknown frame {frame}");
         }
+    }
+
+    #[test]
+    fn the_oldest_recordings_go_first_and_open_ones_stay() {
+        let dir = tempfile::tempdir().unwrap();
+        let names = ["a.mcap", "b.mcap", "c.mcap", "d.mcap"];
+        for (i, name) in names.iter().enumerate() {
+            let path = dir.path().join(name);
+            std::fs::write(&path, vec![0u8; 1000]).unwrap();
+            let t = std::time::SystemTime::UNIX_EPOCH + std::time::Duration::from_secs(1_000 + i as u64);
+            std::fs::File::options().write(true).open(&path).unwrap().set_modified(t).unwrap();
+        }
+        std::fs::write(dir.path().join("notes.txt"), vec![0u8; 5000]).unwrap();
+        // "a" is oldest but still being written.
+        prune(dir.path(), 2000, &[dir.path().join("a.mcap")]);
+        let left: Vec<bool> = names.iter().map(|n| dir.path().join(n).exists()).collect();
+        assert_eq!(left, [true, false, false, true]);
+        assert!(dir.path().join("notes.txt").exists(), "only recordings are deleted");
     }
 
     #[test]

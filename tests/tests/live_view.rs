@@ -2,12 +2,16 @@
 //! written against the Foxglove WebSocket protocol's published library (npm
 //! `@foxglove/ws-protocol`) subscribes to a running stack's topics during a
 //! mission, and the mission's MCAP recording is read back with the `mcap`
-//! Python library and its protobuf decoder (docs/observability.md).
+//! Python library and its protobuf decoder, then replayed through a fresh
+//! stack: the same commands, and a difference once behaviour changes
+//! (docs/observability.md).
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use vlnav::replay::{ReplayArgs, replay};
 use vlnav_e2e::{TestStack, repo_root, tool};
+use vlnav_gateway::config::ExecutorParams;
 use vlnav_proto::v1::{MissionState, SubmitMissionRequest, submit_mission_request::Instruction};
 
 const ROBOT: &str = "husky-1";
@@ -136,4 +140,18 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
     let states = facts["states"].as_array().expect("mission states");
     assert_eq!(states.first().and_then(|s| s.as_str()), Some("running"), "{states:?}");
     assert_eq!(states.last().and_then(|s| s.as_str()), Some("succeeded"), "{states:?}");
+
+    // Replay: the recorded frames through a fresh stack give the recorded commands…
+    let mut args =
+        ReplayArgs { file: file.clone(), perception: None, show: 5, json: false, executor: ExecutorParams::default() };
+    let same = replay(&args).await.expect("replay");
+    assert_eq!(same.perception, "oracle", "the recording says which perception it ran with");
+    assert_eq!(same.frames as u64, frames);
+    assert!(same.identical(), "record != replay:\n{same}");
+    assert_eq!(same.replayed_state, "succeeded");
+    // … and a change of behaviour shows up as a difference.
+    args.executor.default_d_s = 1.0;
+    let changed = replay(&args).await.expect("replay with another stopping distance");
+    assert!(changed.plan_matches && changed.differing > 0, "a nearer stop must change some commands:\n{changed}");
+    assert!(changed.first[0].index > 0, "the first frames drive the same way: {changed}");
 }

@@ -8,8 +8,11 @@
 //! - [`credentials`]: the certificates and tokens of a Kubernetes
 //!   deployment (`vlnav credentials k8s`);
 //! - [`mission`]: the mission client (`vlnav mission`): submit an
-//!   instruction, follow the mission's events, print a summary.
+//!   instruction, follow the mission's events, print a summary;
+//! - [`replay`]: a mission recording fed through a fresh stack, its commands
+//!   compared with the recorded ones (`vlnav replay`).
 
 pub mod credentials;
 pub mod mission;
+pub mod replay;
 pub mod up;

@@ -46,6 +46,9 @@ enum Cmd {
     /// Kubernetes deployment (certificates for every component, tokens).
     #[command(subcommand)]
     Credentials(CredentialsCmd),
+    /// Feed a mission recording's frames through a fresh gateway and stages
+    /// and report where the commands differ from the recorded ones.
+    Replay(vlnav::replay::ReplayArgs),
     /// Per-stage latency of a mission from its distributed trace.
     Profile(vlnav_traces::ProfileArgs),
     /// Run a detector on photos: one line per box (or JSON), annotated copies with --out.
@@ -209,6 +212,18 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Credentials(CredentialsCmd::K8s(args)) => {
             let dir = vlnav::credentials::write_k8s(&args)?;
             eprintln!("{}", vlnav::credentials::next_steps(&args, &dir));
+            Ok(())
+        }
+        Cmd::Replay(args) => {
+            let report = vlnav::replay::replay(&args).await?;
+            if args.json {
+                println!("{}", serde_json::to_string(&report)?);
+            } else {
+                println!("{report}");
+            }
+            if !report.identical() {
+                std::process::exit(3);
+            }
             Ok(())
         }
         Cmd::Profile(args) => {

@@ -117,7 +117,10 @@ pub fn summarise(m: &Mission) -> String {
         out += &format!("\n  {what} {file}");
     }
     if !m.recordings.is_empty() {
-        out += "\n  (MCAP: open it in Foxglove or Lichtblick with deploy/foxglove/vlnav-layout.json)";
+        out += &format!(
+            "\n  (open it in Foxglove or Lichtblick with deploy/foxglove/vlnav-layout.json; replay: vlnav replay {})",
+            m.recordings[0]
+        );
     }
     out
 }

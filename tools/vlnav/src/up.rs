@@ -57,6 +57,8 @@ pub struct UpArgs {
     /// Record every mission to MCAP in `<data-dir>/recordings`.
     #[arg(long, env = "VLNAV_RECORD", default_value_t = true, action = clap::ArgAction::Set)]
     pub record: bool,
+    #[command(flatten)]
+    pub executor: vlnav_gateway::config::ExecutorParams,
 }
 
 impl Default for UpArgs {
@@ -75,6 +77,7 @@ impl Default for UpArgs {
             // Tests and the evaluation opt in; the command line's defaults serve and record.
             live_view: "off".into(),
             record: false,
+            executor: Default::default(),
         }
     }
 }
@@ -355,6 +358,12 @@ pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
     let mut opts = GatewayOptions::loopback(&stage_ports, args.data_dir.clone());
     opts.view.live_view = args.live_view.clone();
     opts.view.record = args.record;
+    opts.view.metadata = vec![
+        ("perception".into(), args.perception.as_str().into()),
+        ("scenario".into(), args.scenario.clone()),
+        ("seed".into(), args.seed.to_string()),
+    ];
+    opts.executor = args.executor.clone();
     let gateway_cfg = Gateway::server_config(&cfg);
     if let Some(sec) = &security {
         opts = opts.over_tls(sec.pki.client_args(Some((sec.pki.gateway_cert(), sec.pki.gateway_key()))));
