@@ -46,6 +46,8 @@ pub struct Gateway {
     /// Attach needs a client certificate naming the robot (set when the
     /// server verifies client certificates, docs/security.md).
     robot_certs: bool,
+    /// Per-caller rate of SubmitMission.
+    submissions: Arc<crate::limit::RateLimiter>,
 }
 
 impl Gateway {
@@ -59,6 +61,7 @@ impl Gateway {
             fleet: Fleet::new(hub, pipeline, opts.executor.clone(), viz),
             auth: AuthLayer::new(tokens),
             robot_certs: false,
+            submissions: Arc::new(crate::limit::RateLimiter::new(opts.submit_per_minute, opts.submit_burst)),
         })
     }
 
@@ -367,6 +370,19 @@ impl MissionService for Gateway {
         request: Request<SubmitMissionRequest>,
     ) -> Result<Response<SubmitMissionResponse>, Status> {
         let caller = Caller::of(&request);
+        // Authenticated callers are limited by name, anonymous ones by address.
+        let key = match (self.auth.is_on(), request.remote_addr()) {
+            (false, Some(addr)) => format!("the anonymous caller at {}", addr.ip()),
+            _ => caller.name.clone(),
+        };
+        if let Err(wait) = self.submissions.check(&key, std::time::Instant::now()) {
+            return Err(Status::resource_exhausted(format!(
+                "{key} submitted more than {} missions at once or {:.0} a minute; try again in {wait:.1} s \
+                 (the gateway's --submit-per-minute and --submit-burst)",
+                self.submissions.burst(),
+                self.submissions.per_minute()
+            )));
+        }
         self.submit(&caller, request.into_inner()).await.map(Response::new)
     }
 

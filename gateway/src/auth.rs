@@ -244,6 +244,11 @@ impl AuthLayer {
         Self { tokens }
     }
 
+    /// Whether callers authenticate (else everyone is anonymous).
+    pub fn is_on(&self) -> bool {
+        self.tokens.is_some()
+    }
+
     /// Wraps one tonic service.
     pub fn wrap<S>(&self, inner: S) -> Authorized<S> {
         Authorized { inner, tokens: self.tokens.clone() }

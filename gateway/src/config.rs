@@ -32,6 +32,13 @@ pub struct GatewayOptions {
     pub stage_tls: vlnav_runtime::security::ClientTlsArgs,
     #[command(flatten)]
     pub executor: ExecutorParams,
+    /// Missions one caller may submit a minute (dry runs included); more get
+    /// RESOURCE_EXHAUSTED. 0: no limit.
+    #[arg(long, env = "VLNAV_SUBMIT_PER_MINUTE", default_value_t = 60)]
+    pub submit_per_minute: u32,
+    /// Submissions one caller may make at once before the per-minute rate applies.
+    #[arg(long, env = "VLNAV_SUBMIT_BURST", default_value_t = 20)]
+    pub submit_burst: u32,
     /// The live view and the mission recordings (docs/observability.md).
     #[command(flatten)]
     pub view: crate::viz::ViewOptions,
@@ -135,6 +142,8 @@ impl GatewayOptions {
             stage_tls: Default::default(),
             executor: ExecutorParams::default(),
             view: crate::viz::ViewOptions::off(),
+            submit_per_minute: 60,
+            submit_burst: 20,
         }
     }
 }

@@ -9,6 +9,7 @@
 //! - [`hub`]: mission records, event logs and watchers, persisted in [`store`];
 //! - [`robot`]: the per-robot actor that owns the attach stream and the executor;
 //! - [`auth`]: bearer tokens, roles and the tower layer that checks them;
+//! - [`limit`]: the per-caller rate limit of mission submissions;
 //! - [`viz`]: the live view (Foxglove WebSocket) and every mission's MCAP recording;
 //! - [`api`]: the thin tonic layer of MissionService and FleetService.
 
@@ -18,6 +19,7 @@ pub mod config;
 pub mod executor;
 pub mod frames;
 pub mod hub;
+pub mod limit;
 pub mod pipeline;
 pub mod robot;
 pub mod store;

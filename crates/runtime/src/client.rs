@@ -81,7 +81,11 @@ fn endpoint(uri: &str, tls: Option<&ClientTls>, domain: Option<&str>) -> Result<
         .map_err(|e| AddressError(format!("{uri:?} is not a URI ({e}); write http://host:port or dns:///host:port")))?
         .connect_timeout(Duration::from_secs(5))
         .tcp_nodelay(true)
-        .http2_keep_alive_interval(Duration::from_secs(30))
+        // Pings find a vanished server (or a partition) within interval +
+        // timeout, also between requests (docs/architecture.md, "Overload").
+        .http2_keep_alive_interval(crate::server::KEEPALIVE_INTERVAL)
+        .keep_alive_timeout(crate::server::KEEPALIVE_TIMEOUT)
+        .keep_alive_while_idle(true)
         // RGB-D frames are megabytes: h2's default 64 KiB windows would cost a
         // round trip per 64 KiB of every frame.
         .initial_stream_window_size(STREAM_WINDOW)

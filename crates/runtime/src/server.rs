@@ -23,6 +23,11 @@ use tonic::transport::server::TcpIncoming;
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
+/// HTTP/2 pings on idle connections, both ends (`client.rs` uses the same).
+pub const KEEPALIVE_INTERVAL: Duration = Duration::from_secs(10);
+/// A ping unanswered this long closes the connection.
+pub const KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(10);
+
 /// Settings every server takes (flags or environment).
 #[derive(clap::Args, Clone, Debug)]
 pub struct ServerConfig {
@@ -50,6 +55,14 @@ pub struct ServerConfig {
     /// nothing but health, so it needs neither TLS nor --insecure.
     #[arg(long, env = "VLNAV_HEALTH_LISTEN")]
     pub health_listen: Option<SocketAddr>,
+    /// Requests one connection may have in flight; one more is refused at
+    /// once with RESOURCE_EXHAUSTED (load shedding) instead of queueing. A
+    /// streaming call holds its place only until its response begins.
+    #[arg(long, env = "VLNAV_MAX_CONCURRENT_REQUESTS", default_value_t = 256)]
+    pub max_concurrent_requests: usize,
+    /// HTTP/2 streams one connection may open at a time (SETTINGS_MAX_CONCURRENT_STREAMS).
+    #[arg(long, env = "VLNAV_MAX_CONCURRENT_STREAMS", default_value_t = 512)]
+    pub max_concurrent_streams: u32,
 }
 
 impl Default for ServerConfig {
@@ -62,6 +75,8 @@ impl Default for ServerConfig {
             insecure: false,
             client_cert_optional: false,
             health_listen: None,
+            max_concurrent_requests: 256,
+            max_concurrent_streams: 512,
         }
     }
 }
@@ -185,6 +200,15 @@ pub async fn serve(
     }
     builder
         .timeout(Duration::from_secs_f64(cfg.request_timeout_s.max(0.001)))
+        // Overload: a connection past its in-flight limit is refused at once
+        // (RESOURCE_EXHAUSTED), never queued behind work it cannot see.
+        .concurrency_limit_per_connection(cfg.max_concurrent_requests.max(1))
+        .load_shed(true)
+        .max_concurrent_streams(cfg.max_concurrent_streams.max(1))
+        // A peer that vanished without closing (a partition, a powered-off
+        // robot) is found within keepalive interval + timeout.
+        .http2_keepalive_interval(Some(KEEPALIVE_INTERVAL))
+        .http2_keepalive_timeout(Some(KEEPALIVE_TIMEOUT))
         .tcp_nodelay(true)
         .initial_stream_window_size(crate::client::STREAM_WINDOW)
         .initial_connection_window_size(crate::client::CONNECTION_WINDOW)

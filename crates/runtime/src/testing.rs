@@ -146,6 +146,74 @@ mod tests {
         assert!(tokio::net::TcpStream::connect(addr).await.is_err(), "the port is closed after stop");
     }
 
+    /// A service whose one method, `/vlnav.test.Slow/Wait`, answers after 500 ms.
+    #[derive(Clone)]
+    struct Slow;
+
+    impl tonic::server::NamedService for Slow {
+        const NAME: &'static str = "vlnav.test.Slow";
+    }
+
+    impl tower::Service<http::Request<tonic::body::Body>> for Slow {
+        type Response = http::Response<tonic::body::Body>;
+        type Error = std::convert::Infallible;
+        type Future = futures::future::BoxFuture<'static, Result<Self::Response, Self::Error>>;
+
+        fn poll_ready(&mut self, _: &mut std::task::Context<'_>) -> std::task::Poll<Result<(), Self::Error>> {
+            std::task::Poll::Ready(Ok(()))
+        }
+
+        fn call(&mut self, req: http::Request<tonic::body::Body>) -> Self::Future {
+            struct Wait;
+            impl tonic::server::UnaryService<()> for Wait {
+                type Response = ();
+                type Future = futures::future::BoxFuture<'static, Result<tonic::Response<()>, tonic::Status>>;
+                fn call(&mut self, _: tonic::Request<()>) -> Self::Future {
+                    Box::pin(async {
+                        tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+                        Ok(tonic::Response::new(()))
+                    })
+                }
+            }
+            Box::pin(async move {
+                let mut grpc = tonic::server::Grpc::new(tonic_prost::ProstCodec::<(), ()>::default());
+                Ok(grpc.unary(Wait, req).await)
+            })
+        }
+    }
+
+    async fn wait(channel: Channel) -> Result<(), tonic::Status> {
+        let mut grpc = tonic::client::Grpc::new(channel);
+        grpc.ready().await.map_err(|e| tonic::Status::unknown(e.to_string()))?;
+        let path = http::uri::PathAndQuery::from_static("/vlnav.test.Slow/Wait");
+        grpc.unary(tonic::Request::new(()), path, tonic_prost::ProstCodec::<(), ()>::default()).await.map(|_| ())
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_connection_past_its_request_limit_is_refused_at_once_not_queued() {
+        let cfg = ServerConfig { max_concurrent_requests: 2, ..ServerConfig::default() };
+        let server = start(&cfg, ServiceSet::new().add("slow", Slow)).await.unwrap();
+        let channel = server.connect().await.unwrap();
+        // Two slow calls hold the connection's two places for 500 ms.
+        let held: Vec<_> = (0..2).map(|_| tokio::spawn(wait(channel.clone()))).collect();
+        tokio::time::sleep(std::time::Duration::from_millis(150)).await;
+        let refused = tokio::time::timeout(std::time::Duration::from_millis(400), wait(channel.clone()))
+            .await
+            .expect("a refusal at once, not a wait behind the slow calls")
+            .unwrap_err();
+        assert_eq!(refused.code(), tonic::Code::ResourceExhausted, "{refused:?}");
+        // Another connection has its own places.
+        let other = tokio::time::timeout(std::time::Duration::from_millis(400), async {
+            let mut health = HealthClient::new(server.connect().await.unwrap());
+            health.check(HealthCheckRequest { service: String::new() }).await
+        });
+        assert!(other.await.expect("served at once").is_ok());
+        for h in held {
+            h.await.unwrap().expect("the calls that held places are served");
+        }
+        wait(channel).await.expect("freed places serve again");
+    }
+
     #[tokio::test]
     async fn dropping_the_server_shuts_it_down() {
         let server = start(&ServerConfig::default(), ServiceSet::new()).await.unwrap();
