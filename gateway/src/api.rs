@@ -69,9 +69,9 @@ impl Gateway {
     /// the gateway's state, so its mission store is closed when this returns.
     pub async fn close(self) {
         self.fleet.close();
-        // Every recording handed over so far is written and its file finished.
+        // Every frame handed over is written and every recording's file finished.
         let viz = self.fleet.viz().clone();
-        let _ = tokio::task::spawn_blocking(move || viz.flush()).await;
+        let _ = tokio::task::spawn_blocking(move || viz.finish()).await;
         for _ in 0..250 {
             if Arc::strong_count(&self.fleet) <= 1 {
                 break;

@@ -33,6 +33,19 @@ async fn main() -> anyhow::Result<()> {
         eprintln!("vlnav-gateway: INSECURE: no bearer tokens on {addr}; anyone who reaches it can submit missions");
     }
     let server = Gateway::server_config(&cli.server);
-    let build = async { Ok(Gateway::new(&cli.gateway)?.services(&ServerConfig::default())) };
-    vlnav_runtime::serve_main("vlnav-gateway", ports::GATEWAY, server, build).await
+    // Kept to close it after serving: its recordings are finished on shutdown.
+    let kept = std::sync::Arc::new(std::sync::Mutex::new(None));
+    let keep = kept.clone();
+    let build = async move {
+        let gateway = Gateway::new(&cli.gateway)?;
+        let services = gateway.services(&ServerConfig::default());
+        *keep.lock().unwrap_or_else(|p| p.into_inner()) = Some(gateway);
+        Ok(services)
+    };
+    let result = vlnav_runtime::serve_main("vlnav-gateway", ports::GATEWAY, server, build).await;
+    let gateway = kept.lock().unwrap_or_else(|p| p.into_inner()).take();
+    if let Some(gateway) = gateway {
+        gateway.close().await;
+    }
+    result
 }

@@ -125,10 +125,24 @@ pub struct FrameView {
 
 enum Msg {
     Frame(Box<FrameView>),
-    Start { robot_id: String, mission_id: String, path: PathBuf, plan: pb::ActionPlan, instruction: String },
-    Event { robot_id: String, event: pb::MissionEvent },
-    End { robot_id: String, mission_id: String },
+    Start {
+        robot_id: String,
+        mission_id: String,
+        path: PathBuf,
+        plan: pb::ActionPlan,
+        instruction: String,
+    },
+    Event {
+        robot_id: String,
+        event: pb::MissionEvent,
+    },
+    End {
+        robot_id: String,
+        mission_id: String,
+    },
     Flush(mpsc::Sender<()>),
+    /// Ends every recording (the gateway is closing).
+    Finish(mpsc::Sender<()>),
 }
 
 /// The handle robot actors use; cheap to clone. Without a live view and
@@ -279,11 +293,21 @@ impl Viz {
         }
     }
 
-    /// Waits until everything handed over so far is written (tests, shutdown).
+    /// Waits until everything handed over so far is written (tests).
     pub fn flush(&self) {
+        self.wait_for(Msg::Flush);
+    }
+
+    /// Writes what was handed over, then ends every recording still open, so
+    /// that each file is complete (summary and footer) when the gateway stops.
+    pub fn finish(&self) {
+        self.wait_for(Msg::Finish);
+    }
+
+    fn wait_for(&self, msg: fn(mpsc::Sender<()>) -> Msg) {
         if let Some(inner) = &self.inner {
             let (tx, rx) = mpsc::channel();
-            if inner.tx.send(Msg::Flush(tx)).is_ok() {
+            if inner.tx.send(msg(tx)).is_ok() {
                 let _ = rx.recv_timeout(std::time::Duration::from_secs(30));
             }
         }
@@ -502,6 +526,12 @@ impl View {
                 {
                     robot.recording = None;
                 }
+            }
+            Msg::Finish(done) => {
+                for robot in self.robots.values_mut() {
+                    robot.recording = None;
+                }
+                let _ = done.send(());
             }
             Msg::Flush(done) => {
                 for robot in self.robots.values() {

@@ -9,7 +9,8 @@ use vlnav_proto::v1::{MissionState, SubmitMissionRequest, submit_mission_request
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_flood_of_submissions_is_refused_at_once_and_the_running_mission_finishes() {
-    let t = TestStack::start(|_| {}).await;
+    // The command line's default limit (tests run without one).
+    let t = TestStack::start(|a| a.submit_per_minute = 60).await;
     let mut missions = t.missions().await;
     let running = missions
         .submit_mission(SubmitMissionRequest {

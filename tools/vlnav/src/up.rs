@@ -57,6 +57,10 @@ pub struct UpArgs {
     /// Record every mission to MCAP in `<data-dir>/recordings`.
     #[arg(long, env = "VLNAV_RECORD", default_value_t = true, action = clap::ArgAction::Set)]
     pub record: bool,
+    /// Missions one caller may submit a minute, after a burst of 20
+    /// (docs/architecture.md, "Overload"); 0: no limit.
+    #[arg(long, env = "VLNAV_SUBMIT_PER_MINUTE", default_value_t = 60)]
+    pub submit_per_minute: u32,
     #[command(flatten)]
     pub executor: vlnav_gateway::config::ExecutorParams,
 }
@@ -77,6 +81,8 @@ impl Default for UpArgs {
             // Tests and the evaluation opt in; the command line's defaults serve and record.
             live_view: "off".into(),
             record: false,
+            // The evaluation and the tests submit as fast as missions end.
+            submit_per_minute: 0,
             executor: Default::default(),
         }
     }
@@ -211,14 +217,25 @@ impl Stack {
     }
 
     /// Waits until a server fails or the token is cancelled.
+    /// The gateway is closed either way (its recordings finished).
     pub async fn wait(mut self) -> anyhow::Result<()> {
+        let mut result = Ok(());
         while let Some(r) = self.tasks.join_next().await {
-            if let Err(e) = r? {
-                self.token.cancel();
-                return Err(e);
+            match r {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => {
+                    result = Err(e);
+                    break;
+                }
+                Err(e) => {
+                    result = Err(e.into());
+                    break;
+                }
             }
         }
-        Ok(())
+        self.token.cancel();
+        self.gateway.close().await;
+        result
     }
 }
 
@@ -364,6 +381,7 @@ pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
         ("seed".into(), args.seed.to_string()),
     ];
     opts.executor = args.executor.clone();
+    opts.submit_per_minute = args.submit_per_minute;
     let gateway_cfg = Gateway::server_config(&cfg);
     if let Some(sec) = &security {
         opts = opts.over_tls(sec.pki.client_args(Some((sec.pki.gateway_cert(), sec.pki.gateway_key()))));
