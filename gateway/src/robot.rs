@@ -336,14 +336,7 @@ impl RobotActor {
                     _ => {
                         self.reserved = None;
                         let id = run.mission_id.clone();
-                        if let Some(path) =
-                            self.fleet.viz.start_mission(&self.robot_id, &id, run.plan_proto(), run.instruction())
-                        {
-                            let file = path.display().to_string();
-                            if let Err(e) = self.fleet.hub.record(&id, 0.0, None, |m| m.recordings = vec![file]) {
-                                tracing::warn!(mission = %id, "cannot note the mission's recording: {e}");
-                            }
-                        }
+                        self.fleet.viz.start_mission(&self.robot_id, &id, run.plan_proto(), run.instruction());
                         self.update(|i| i.active_mission_id = id);
                         self.run = Some(run);
                         Ok(())
@@ -467,7 +460,11 @@ impl RobotActor {
                 _ => VelocityCommand::default(),
             };
             let mission_id = mission.as_ref().map(|m| m.mission_id.clone());
-            fleet.viz.frame(FrameView { robot_id: self.robot_id.clone(), frame, command, mission, seen });
+            let lockstep = self.info.lock().map(|i| i.lockstep).unwrap_or(false);
+            fleet
+                .viz
+                .frame(FrameView { robot_id: self.robot_id.clone(), frame, command, mission, seen }, lockstep)
+                .await;
             if finished && let Some(id) = mission_id {
                 fleet.viz.end_mission(&self.robot_id, &id);
             }

@@ -19,7 +19,7 @@ use std::io::BufWriter;
 use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::mpsc;
 
 use foxglove::messages as fg;
@@ -124,7 +124,8 @@ pub struct FrameView {
 }
 
 enum Msg {
-    Frame(Box<FrameView>),
+    /// The permit is the frame's place in the queue, given back once drawn.
+    Frame(Box<FrameView>, tokio::sync::OwnedSemaphorePermit),
     Start {
         robot_id: String,
         mission_id: String,
@@ -154,7 +155,8 @@ pub struct Viz {
 
 struct Inner {
     tx: mpsc::Sender<Msg>,
-    queued: Arc<AtomicUsize>,
+    /// Places for frames waiting for the view thread.
+    places: Arc<tokio::sync::Semaphore>,
     dropped: AtomicU64,
     live: Option<SocketAddr>,
     record_dir: Option<PathBuf>,
@@ -175,8 +177,7 @@ impl Viz {
         }
         let (tx, rx) = mpsc::channel();
         let (ready_tx, ready_rx) = mpsc::channel();
-        let queued = Arc::new(AtomicUsize::new(0));
-        let thread_queued = queued.clone();
+        let places = Arc::new(tokio::sync::Semaphore::new(MAX_QUEUED_FRAMES));
         let max_bytes = opts.record_max_mib.saturating_mul(1 << 20);
         let metadata = opts.metadata.clone();
         let budget = opts.record_budget_mib.saturating_mul(1 << 20);
@@ -209,9 +210,6 @@ impl Viz {
             };
             let mut view = View { ctx, hub, max_bytes, budget, metadata, robots: HashMap::new() };
             while let Ok(msg) = rx.recv() {
-                if matches!(msg, Msg::Frame(_)) {
-                    thread_queued.fetch_sub(1, Ordering::Relaxed);
-                }
                 view.handle(msg);
             }
             // The gateway is closing: finish every recording's file.
@@ -224,7 +222,7 @@ impl Viz {
         if let Some(addr) = live {
             tracing::info!(%addr, "live view (Foxglove WebSocket) at ws://{addr}");
         }
-        Ok(Self { inner: Some(Arc::new(Inner { tx, queued, dropped: AtomicU64::new(0), live, record_dir })) })
+        Ok(Self { inner: Some(Arc::new(Inner { tx, places, dropped: AtomicU64::new(0), live, record_dir })) })
     }
 
     /// Where the live view listens (with the port the OS chose for port 0).
@@ -237,7 +235,8 @@ impl Viz {
         self.inner.as_ref().map_or(0, |i| i.dropped.load(Ordering::Relaxed))
     }
 
-    /// Starts recording a mission; returns the file it goes to.
+    /// Starts recording a mission; returns the file it goes to. The mission
+    /// record names it once the file is open.
     pub fn start_mission(
         &self,
         robot_id: &str,
@@ -276,21 +275,31 @@ impl Viz {
         self.inner.is_some()
     }
 
-    /// A frame after its command left. Never waits: dropped (and counted)
-    /// when the view thread is [`MAX_QUEUED_FRAMES`] behind.
-    pub fn frame(&self, view: FrameView) {
+    /// A frame after its command left. When the view thread is
+    /// [`MAX_QUEUED_FRAMES`] behind, a real-time robot's frame is dropped
+    /// from the view and the recording (and counted): its control loop never
+    /// waits. A lockstep robot's clock stands still until it is answered, so
+    /// its frame waits for a place instead and its recording stays complete.
+    pub async fn frame(&self, view: FrameView, lockstep: bool) {
         let Some(inner) = &self.inner else { return };
-        if inner.queued.fetch_add(1, Ordering::Relaxed) >= MAX_QUEUED_FRAMES {
-            inner.queued.fetch_sub(1, Ordering::Relaxed);
-            let n = inner.dropped.fetch_add(1, Ordering::Relaxed) + 1;
-            if n.is_power_of_two() {
-                tracing::warn!(dropped = n, "the live view and recordings are behind; frames are dropped from them");
+        let permit = match inner.places.clone().try_acquire_owned() {
+            Ok(permit) => permit,
+            Err(_) if lockstep => match inner.places.clone().acquire_owned().await {
+                Ok(permit) => permit,
+                Err(_) => return,
+            },
+            Err(_) => {
+                let n = inner.dropped.fetch_add(1, Ordering::Relaxed) + 1;
+                if n.is_power_of_two() {
+                    tracing::warn!(
+                        dropped = n,
+                        "the live view and recordings are behind; frames are dropped from them"
+                    );
+                }
+                return;
             }
-            return;
-        }
-        if inner.tx.send(Msg::Frame(Box::new(view))).is_err() {
-            inner.queued.fetch_sub(1, Ordering::Relaxed);
-        }
+        };
+        let _ = inner.tx.send(Msg::Frame(Box::new(view), permit));
     }
 
     /// Waits until everything handed over so far is written (tests).
@@ -467,7 +476,7 @@ impl View {
 
     fn handle(&mut self, msg: Msg) {
         match msg {
-            Msg::Frame(view) => self.frame(*view),
+            Msg::Frame(view, _place) => self.frame(*view),
             Msg::Start { robot_id, mission_id, path, plan, instruction } => {
                 if self.budget > 0
                     && let Some(dir) = path.parent()
@@ -495,7 +504,7 @@ impl View {
                         None
                     }
                 };
-                let recorded = recording.is_some();
+                let recorded = recording.as_ref().map(|r| r.first.display().to_string());
                 robot.recording = recording;
                 let stamp = robot.last_stamp;
                 if let Some(handle) = robot.recording.as_ref().and_then(|r| r.handle.as_ref()) {
@@ -509,8 +518,10 @@ impl View {
                     }
                 }
                 robot.topics.plan.log_with_meta(&plan.encode_to_vec(), PartialMetadata::with_log_time(nanos(stamp)));
-                if !recorded {
-                    let _ = self.hub.record(&mission_id, stamp, None, |m| m.recordings.clear());
+                if let Some(file) = recorded
+                    && let Err(e) = self.hub.record(&mission_id, stamp, None, |m| m.recordings = vec![file])
+                {
+                    tracing::warn!(mission = %mission_id, "cannot note the mission's recording: {e}");
                 }
             }
             Msg::Event { robot_id, event } => {
@@ -1014,15 +1025,14 @@ mod tests {
         }
     }
 
-    #[test]
-    fn a_long_recording_continues_in_new_files_that_the_mission_names() {
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_long_recording_continues_in_new_files_that_the_mission_names() {
         let dir = tempfile::tempdir().unwrap();
         let hub = Hub::open(crate::store::Store::open(dir.path()).unwrap()).unwrap();
         hub.create(pb::Mission { mission_id: "m-1".into(), robot_id: "r1".into(), ..Default::default() }).unwrap();
         let opts = ViewOptions { live_view: "off".into(), record: true, record_max_mib: 1, ..Default::default() };
         let viz = Viz::start(&opts, dir.path(), hub.clone()).unwrap();
         let first = viz.start_mission("r1", "m-1", pb::ActionPlan::default(), "go").unwrap();
-        hub.record("m-1", 0.0, None, |m| m.recordings = vec![first.display().to_string()]).unwrap();
         for seq in 0..(2 * SIZE_CHECK_EVERY + 1) {
             let view = FrameView {
                 robot_id: "r1".into(),
@@ -1031,17 +1041,15 @@ mod tests {
                 mission: None,
                 seen: Seen::default(),
             };
-            // Hand frames over no faster than the thread writes them: this
-            // test is about rotation, not about dropping.
-            while viz.inner.as_ref().unwrap().queued.load(Ordering::Relaxed) >= MAX_QUEUED_FRAMES {
-                std::thread::sleep(std::time::Duration::from_millis(5));
-            }
-            viz.frame(view);
+            // As a lockstep robot's: waits for a place, drops nothing.
+            viz.frame(view, true).await;
         }
         viz.end_mission("r1", "m-1");
-        viz.flush();
+        let v = viz.clone();
+        tokio::task::spawn_blocking(move || v.flush()).await.unwrap();
         let files = hub.get("m-1").unwrap().recordings;
         assert_eq!(files.len(), 3, "{files:?}");
+        assert_eq!(files[0], first.display().to_string());
         assert!(files[1].ends_with("m-1.part2.mcap") && files[2].ends_with("m-1.part3.mcap"), "{files:?}");
         let mut frames = 0;
         for f in &files {
@@ -1091,6 +1099,39 @@ mod tests {
         for frame in names.iter().filter(|n| n.starts_with("husky-1/")) {
             assert!(["husky-1/odom", "husky-1/base_link"].contains(&frame.as_str()), "unknown frame {frame}");
         }
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_real_time_robot_never_waits_its_frames_are_dropped_and_counted_instead() {
+        let dir = tempfile::tempdir().unwrap();
+        let hub = Hub::open(crate::store::Store::open(dir.path()).unwrap()).unwrap();
+        hub.create(pb::Mission { mission_id: "m-1".into(), robot_id: "r1".into(), ..Default::default() }).unwrap();
+        let opts = ViewOptions { live_view: "off".into(), record: true, ..Default::default() };
+        let viz = Viz::start(&opts, dir.path(), hub.clone()).unwrap();
+        viz.start_mission("r1", "m-1", pb::ActionPlan::default(), "go");
+        let frames: Vec<_> = (0..200).map(noisy_frame).collect();
+        for frame in frames {
+            let view = FrameView {
+                robot_id: "r1".into(),
+                frame,
+                command: pb::VelocityCommand::default(),
+                mission: None,
+                seen: Seen::default(),
+            };
+            viz.frame(view, false).await;
+        }
+        viz.end_mission("r1", "m-1");
+        let v = viz.clone();
+        tokio::task::spawn_blocking(move || v.flush()).await.unwrap();
+        let dropped = viz.dropped_frames();
+        assert!(dropped > 0, "200 frames of noise handed over at once outrun the writer");
+        let file = &hub.get("m-1").unwrap().recordings[0];
+        let bytes = std::fs::read(file).unwrap();
+        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+        let stats = summary.stats.unwrap();
+        let (id, _) = summary.channels.iter().find(|(_, c)| c.topic == "/r1/sensor_frame").unwrap();
+        let recorded = stats.channel_message_counts[id];
+        assert_eq!(recorded + dropped, 200, "every frame is either recorded or counted as dropped");
     }
 
     #[test]
