@@ -10,9 +10,10 @@
 //!   chunked and zstd-compressed, continued in a new file past a size limit.
 //!
 //! The robot actors hand their frames over after the velocity command has
-//! left and never wait: at most [`MAX_QUEUED_FRAMES`] wait here, a newer one
-//! beyond that is dropped and counted (and said in the log). Nothing is
-//! encoded for a topic nobody reads.
+//! left; at most [`MAX_QUEUED_FRAMES`] wait here. Beyond that a real-time
+//! robot's frame is dropped and counted (and said in the log), so its control
+//! loop never waits; a lockstep robot's waits for a place, since its clock
+//! stands still until answered. Nothing is encoded for a topic nobody reads.
 
 use std::collections::HashMap;
 use std::io::BufWriter;
