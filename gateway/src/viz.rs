@@ -1026,43 +1026,64 @@ mod tests {
         }
     }
 
-    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-    async fn a_long_recording_continues_in_new_files_that_the_mission_names() {
+    /// Records `count` noisy frames of robot "r1" as mission "m-1", handed
+    /// over as fast as `Viz::frame` returns, and waits until all is written.
+    async fn record_noise(
+        count: u64,
+        lockstep: bool,
+        record_max_mib: u64,
+    ) -> (tempfile::TempDir, Arc<Hub>, Viz, PathBuf) {
         let dir = tempfile::tempdir().unwrap();
         let hub = Hub::open(crate::store::Store::open(dir.path()).unwrap()).unwrap();
         hub.create(pb::Mission { mission_id: "m-1".into(), robot_id: "r1".into(), ..Default::default() }).unwrap();
-        let opts = ViewOptions { live_view: "off".into(), record: true, record_max_mib: 1, ..Default::default() };
+        let opts = ViewOptions { live_view: "off".into(), record: true, record_max_mib, ..Default::default() };
         let viz = Viz::start(&opts, dir.path(), hub.clone()).unwrap();
         let first = viz.start_mission("r1", "m-1", pb::ActionPlan::default(), "go").unwrap();
-        for seq in 0..(2 * SIZE_CHECK_EVERY + 1) {
+        // Made before the hand-over, so that it is not slowed by making them.
+        let frames: Vec<_> = (0..count).map(noisy_frame).collect();
+        for frame in frames {
             let view = FrameView {
                 robot_id: "r1".into(),
-                frame: noisy_frame(seq),
+                frame,
                 command: pb::VelocityCommand::default(),
                 mission: None,
                 seen: Seen::default(),
             };
-            // As a lockstep robot's: waits for a place, drops nothing.
-            viz.frame(view, true).await;
+            viz.frame(view, lockstep).await;
         }
         viz.end_mission("r1", "m-1");
         let v = viz.clone();
         tokio::task::spawn_blocking(move || v.flush()).await.unwrap();
+        (dir, hub, viz, first)
+    }
+
+    /// A finished file's chunk count and its count of r1's raw frames.
+    fn chunks_and_frames(file: &str) -> (u32, u64) {
+        let bytes = std::fs::read(file).unwrap();
+        let summary = mcap::Summary::read(&bytes).unwrap().expect("a finished file has a summary");
+        let stats = summary.stats.expect("statistics");
+        let frames = summary
+            .channels
+            .iter()
+            .filter(|(_, c)| c.topic == "/r1/sensor_frame")
+            .map(|(id, _)| stats.channel_message_counts.get(id).copied().unwrap_or(0))
+            .sum();
+        (stats.chunk_count, frames)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_long_recording_continues_in_new_files_that_the_mission_names() {
+        // As a lockstep robot's: each frame waits for a place, none is dropped.
+        let (_dir, hub, viz, first) = record_noise(2 * SIZE_CHECK_EVERY + 1, true, 1).await;
         let files = hub.get("m-1").unwrap().recordings;
         assert_eq!(files.len(), 3, "{files:?}");
         assert_eq!(files[0], first.display().to_string());
         assert!(files[1].ends_with("m-1.part2.mcap") && files[2].ends_with("m-1.part3.mcap"), "{files:?}");
         let mut frames = 0;
         for f in &files {
-            let bytes = std::fs::read(f).unwrap();
-            let summary = mcap::Summary::read(&bytes).unwrap().expect("a finished file has a summary");
-            let stats = summary.stats.expect("statistics");
-            assert!(stats.chunk_count > 0, "{f} is chunked");
-            for (id, channel) in &summary.channels {
-                if channel.topic == "/r1/sensor_frame" {
-                    frames += stats.channel_message_counts.get(id).copied().unwrap_or(0);
-                }
-            }
+            let (chunks, n) = chunks_and_frames(f);
+            assert!(chunks > 0, "{f} is chunked");
+            frames += n;
         }
         assert_eq!(frames, 2 * SIZE_CHECK_EVERY + 1, "every frame is in one of the files");
         assert_eq!(viz.dropped_frames(), 0);
@@ -1104,34 +1125,10 @@ mod tests {
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
     async fn a_real_time_robot_never_waits_its_frames_are_dropped_and_counted_instead() {
-        let dir = tempfile::tempdir().unwrap();
-        let hub = Hub::open(crate::store::Store::open(dir.path()).unwrap()).unwrap();
-        hub.create(pb::Mission { mission_id: "m-1".into(), robot_id: "r1".into(), ..Default::default() }).unwrap();
-        let opts = ViewOptions { live_view: "off".into(), record: true, ..Default::default() };
-        let viz = Viz::start(&opts, dir.path(), hub.clone()).unwrap();
-        viz.start_mission("r1", "m-1", pb::ActionPlan::default(), "go");
-        let frames: Vec<_> = (0..200).map(noisy_frame).collect();
-        for frame in frames {
-            let view = FrameView {
-                robot_id: "r1".into(),
-                frame,
-                command: pb::VelocityCommand::default(),
-                mission: None,
-                seen: Seen::default(),
-            };
-            viz.frame(view, false).await;
-        }
-        viz.end_mission("r1", "m-1");
-        let v = viz.clone();
-        tokio::task::spawn_blocking(move || v.flush()).await.unwrap();
+        let (_dir, hub, viz, _) = record_noise(200, false, 512).await;
         let dropped = viz.dropped_frames();
         assert!(dropped > 0, "200 frames of noise handed over at once outrun the writer");
-        let file = &hub.get("m-1").unwrap().recordings[0];
-        let bytes = std::fs::read(file).unwrap();
-        let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
-        let stats = summary.stats.unwrap();
-        let (id, _) = summary.channels.iter().find(|(_, c)| c.topic == "/r1/sensor_frame").unwrap();
-        let recorded = stats.channel_message_counts[id];
+        let (_, recorded) = chunks_and_frames(&hub.get("m-1").unwrap().recordings[0]);
         assert_eq!(recorded + dropped, 200, "every frame is either recorded or counted as dropped");
     }
 
