@@ -18,6 +18,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fds = protox::compile(&files, [&root])?;
     let out = PathBuf::from(std::env::var("OUT_DIR")?);
     std::fs::write(out.join("vlnav_descriptor.bin"), prost::Message::encode_to_vec(&fds))?;
-    tonic_prost_build::configure().build_server(true).build_client(true).compile_fds(fds)?;
+    // Image, depth, label and audio payloads are `bytes::Bytes`: a frame handed to
+    // several stages is shared, not copied (docs/architecture.md, "Frames").
+    tonic_prost_build::configure().bytes(".").build_server(true).build_client(true).compile_fds(fds)?;
     Ok(())
 }

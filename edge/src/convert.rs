@@ -78,15 +78,15 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
             width: f.width,
             height: f.height,
             encoding: pb::ImageEncoding::Rgb8 as i32,
-            data: f.rgb.clone(),
+            data: f.rgb.clone().into(),
         }),
-        depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: u16_le(&f.depth_mm) }),
+        depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: u16_le(&f.depth_mm).into() }),
         odom: Some(pose_to_proto(&meta.odom)),
         odom_twist: Some(twist(&meta.odom_twist)),
         labels: Some(pb::LabelImage {
             width: f.width,
             height: f.height,
-            instance_ids: u16_le(&f.labels),
+            instance_ids: u16_le(&f.labels).into(),
             instances: f
                 .instances
                 .iter()

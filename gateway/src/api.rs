@@ -160,7 +160,7 @@ impl Gateway {
             .map(|(i, c)| AudioChunk {
                 format: if i == 0 { format } else { 0 },
                 sample_rate: if i == 0 { rate } else { 0 },
-                data: c.to_vec(),
+                data: c.to_vec().into(),
             })
             .collect();
         let resp = self.pipeline().ingress.clone().transcribe(tokio_stream::iter(chunks)).await?;

@@ -148,9 +148,9 @@ pub(crate) mod tests {
                 width: w,
                 height: h,
                 encoding: ImageEncoding::Rgb8 as i32,
-                data: vec![0; (w * h * 3) as usize],
+                data: vec![0; (w * h * 3) as usize].into(),
             }),
-            depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize] }),
+            depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize].into() }),
             odom: Some(Pose2D { x: 0.0, y: 0.0, theta: 0.0 }),
             odom_twist: None,
             labels: None,
@@ -181,7 +181,8 @@ pub(crate) mod tests {
     #[test]
     fn a_wrong_rgb_size_and_a_time_reversal_are_rejected() {
         let mut f = frame(8, 6);
-        f.rgb.as_mut().unwrap().data.pop();
+        let data = &mut f.rgb.as_mut().unwrap().data;
+        data.truncate(data.len() - 1);
         assert!(check_frame(&f, None).unwrap_err().to_string().contains("RGB8"));
         let f = frame(8, 6);
         assert!(matches!(check_frame(&f, Some(2.0)), Err(FrameError::StampBackwards { .. })));

@@ -663,7 +663,7 @@ impl View {
                     &fg::CompressedImage {
                         timestamp: timestamp(stamp),
                         frame_id: t.frame_id("camera_optical"),
-                        data: data.into(),
+                        data,
                         format: format.into(),
                     },
                     nanos(stamp),
@@ -686,7 +686,7 @@ impl View {
                     height: depth.height,
                     encoding: "16UC1".into(),
                     step: depth.width * 2,
-                    data: depth.data_mm.into(),
+                    data: depth.data_mm,
                 },
                 nanos(stamp),
             );
@@ -817,7 +817,7 @@ fn rotate(ctx: &Arc<Context>, hub: &Hub, robot_id: &str, rec: &mut Recording, st
 
 /// The camera image as the live view wants it: JPEG and PNG pass through,
 /// raw RGB is encoded as JPEG.
-fn compressed(rgb: pb::Image) -> Result<(&'static str, Vec<u8>), String> {
+fn compressed(rgb: pb::Image) -> Result<(&'static str, bytes::Bytes), String> {
     match pb::ImageEncoding::try_from(rgb.encoding) {
         Ok(pb::ImageEncoding::Jpeg) => Ok(("jpeg", rgb.data)),
         Ok(pb::ImageEncoding::Png) => Ok(("png", rgb.data)),
@@ -829,7 +829,7 @@ fn compressed(rgb: pb::Image) -> Result<(&'static str, Vec<u8>), String> {
             image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 85)
                 .encode(&rgb.data, rgb.width, rgb.height, image::ExtendedColorType::Rgb8)
                 .map_err(|e| e.to_string())?;
-            Ok(("jpeg", out))
+            Ok(("jpeg", out.into()))
         }
         _ => Err(format!("unknown image encoding {}", rgb.encoding)),
     }
@@ -983,11 +983,13 @@ mod tests {
 
     #[test]
     fn raw_rgb_is_compressed_and_bad_sizes_are_refused() {
-        let rgb = pb::Image { width: 4, height: 2, encoding: pb::ImageEncoding::Rgb8 as i32, data: vec![128; 24] };
+        let rgb =
+            pb::Image { width: 4, height: 2, encoding: pb::ImageEncoding::Rgb8 as i32, data: vec![128; 24].into() };
         let (format, data) = compressed(rgb).unwrap();
         assert_eq!(format, "jpeg");
         assert_eq!(&data[..2], &[0xFF, 0xD8]);
-        let short = pb::Image { width: 4, height: 2, encoding: pb::ImageEncoding::Rgb8 as i32, data: vec![0; 5] };
+        let short =
+            pb::Image { width: 4, height: 2, encoding: pb::ImageEncoding::Rgb8 as i32, data: vec![0; 5].into() };
         assert!(compressed(short).unwrap_err().contains("not 4x2x3"));
     }
 

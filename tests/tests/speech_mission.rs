@@ -79,7 +79,7 @@ async fn spoken_instructions_plan_like_typed_ones_through_the_gateway() {
         let Some(Outcome::Plan(expected)) = typed.outcome else {
             panic!("typed '{text}' did not plan: {:?}", typed.outcome)
         };
-        let audio = Audio { format: AudioFormat::Wav as i32, sample_rate: 0, data: speak(said) };
+        let audio = Audio { format: AudioFormat::Wav as i32, sample_rate: 0, data: speak(said).into() };
         let spoken = missions
             .submit_mission(SubmitMissionRequest {
                 robot_id: String::new(),

@@ -315,12 +315,12 @@ mod tests {
     #[test]
     fn depth_must_match_the_camera() {
         let cam = camera_from_proto(Some(&info()), "frame.camera", DEFAULTS).unwrap();
-        let d = pb::DepthImage { width: 4, height: 2, data_mm: encode_depth_mm(&[1.0; 8]) };
+        let d = pb::DepthImage { width: 4, height: 2, data_mm: encode_depth_mm(&[1.0; 8]).into() };
         assert_eq!(depth_from_proto(Some(&d), &cam, "frame.depth").unwrap().mm(3, 1), 1000);
         assert_eq!(field_of(depth_from_proto(None, &cam, "frame.depth")), "frame.depth");
         let wide = pb::DepthImage { width: 8, height: 1, ..d.clone() };
         assert_eq!(field_of(depth_from_proto(Some(&wide), &cam, "frame.depth")), "frame.depth.width/height");
-        let short = pb::DepthImage { data_mm: vec![0; 15], ..d };
+        let short = pb::DepthImage { data_mm: vec![0; 15].into(), ..d };
         assert_eq!(field_of(depth_from_proto(Some(&short), &cam, "frame.depth")), "frame.depth.data_mm");
     }
 
@@ -341,22 +341,23 @@ mod tests {
 
     #[test]
     fn image_encodings_and_label_sizes_are_checked() {
-        let img = pb::Image { width: 1, height: 1, encoding: pb::ImageEncoding::Rgb8 as i32, data: vec![1, 2, 3] };
+        let img =
+            pb::Image { width: 1, height: 1, encoding: pb::ImageEncoding::Rgb8 as i32, data: vec![1, 2, 3].into() };
         assert_eq!(encoded_image_from_proto(&img).unwrap().decode().unwrap().into_raw(), vec![1, 2, 3]);
         let unset = pb::Image { encoding: pb::ImageEncoding::Unspecified as i32, ..img.clone() };
         assert_eq!(encoded_image_from_proto(&unset).unwrap_err(), ImageError::Unspecified);
         let odd = pb::Image { encoding: 77, ..img.clone() };
         assert_eq!(encoded_image_from_proto(&odd).unwrap_err(), ImageError::UnknownEncoding(77));
         assert_eq!(ImageError::UnknownEncoding(77).in_field("images[1]").field, "images[1].encoding");
-        let e = encoded_image_from_proto(&pb::Image { data: vec![1], ..img }).unwrap().decode().unwrap_err();
+        let e = encoded_image_from_proto(&pb::Image { data: vec![1].into(), ..img }).unwrap().decode().unwrap_err();
         let f = e.in_field("frame.rgb");
         assert_eq!(f.field, "frame.rgb.data");
         assert!(f.to_string().starts_with("invalid frame.rgb.data: RGB8 data has 1 bytes"), "{f}");
 
-        let l = pb::LabelImage { width: 2, height: 1, instance_ids: vec![1, 0, 2, 1], instances: vec![] };
+        let l = pb::LabelImage { width: 2, height: 1, instance_ids: vec![1, 0, 2, 1].into(), instances: vec![] };
         assert_eq!(label_ids_from_proto(&l, 2, 1, "frame.labels").unwrap(), vec![1, 258]);
         assert_eq!(field_of(label_ids_from_proto(&l, 1, 2, "frame.labels")), "frame.labels.width/height");
-        let short = pb::LabelImage { instance_ids: vec![1], ..l };
+        let short = pb::LabelImage { instance_ids: vec![1].into(), ..l };
         assert_eq!(field_of(label_ids_from_proto(&short, 2, 1, "frame.labels")), "frame.labels.instance_ids");
     }
 }

@@ -117,14 +117,15 @@ fn jpeg_is_complete(data: &[u8]) -> bool {
     end >= 4 && data[..2] == [0xFF, 0xD8] && data[end - 2..end] == [0xFF, 0xD9]
 }
 
-/// An image still encoded, owning its bytes so it can move to another thread.
+/// An image still encoded, sharing its bytes with the request it came in
+/// (no copy) so it can move to another thread.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EncodedImage {
     pub encoding: Encoding,
     /// Declared size; 0 leaves a PNG's or JPEG's own size unchecked.
     pub width: u32,
     pub height: u32,
-    pub data: Vec<u8>,
+    pub data: bytes::Bytes,
 }
 
 impl EncodedImage {
@@ -210,8 +211,8 @@ mod tests {
 
     #[tokio::test]
     async fn off_thread_decoding_names_the_failing_image() {
-        let good = EncodedImage { encoding: Encoding::Rgb8, width: 1, height: 1, data: vec![1, 2, 3] };
-        let bad = EncodedImage { data: vec![1, 2], ..good.clone() };
+        let good = EncodedImage { encoding: Encoding::Rgb8, width: 1, height: 1, data: vec![1, 2, 3].into() };
+        let bad = EncodedImage { data: vec![1, 2].into(), ..good.clone() };
         assert_eq!(decode_off_thread(good.clone()).await.unwrap().into_raw(), vec![1, 2, 3]);
         let (i, e) = decode_all_off_thread(vec![good.clone(), bad, good]).await.unwrap_err();
         assert_eq!(i, 1);

@@ -39,7 +39,7 @@ fn camera_frame() -> v1::RgbdFrame {
             width: 640,
             height: 480,
             encoding: v1::ImageEncoding::Rgb8 as i32,
-            data: frame.into_raw(),
+            data: frame.into_raw().into(),
         }),
         ..Default::default()
     }
@@ -62,8 +62,8 @@ fn label_frame() -> v1::RgbdFrame {
         .collect();
     v1::RgbdFrame {
         seq: 1,
-        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth }),
-        labels: Some(v1::LabelImage { width: w, height: h, instance_ids: ids, instances }),
+        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth.into() }),
+        labels: Some(v1::LabelImage { width: w, height: h, instance_ids: ids.into(), instances }),
         ..Default::default()
     }
 }

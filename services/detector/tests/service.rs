@@ -42,11 +42,11 @@ fn labelled_frame(seq: u64) -> v1::RgbdFrame {
         robot_id: "husky-1".into(),
         seq,
         stamp: seq as f64 * 0.2,
-        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth }),
+        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth.into() }),
         labels: Some(v1::LabelImage {
             width: w,
             height: h,
-            instance_ids: ids,
+            instance_ids: ids.into(),
             instances: vec![inst(7, 0, "object"), inst(8, 56, "object"), inst(9, -1, "wall")],
         }),
         ..Default::default()
@@ -75,7 +75,8 @@ async fn simulation_backend_reads_label_images() {
     assert_eq!(e.code(), Code::InvalidArgument);
     assert!(e.message().contains("frame.labels"), "{}", e.message());
     let mut frame = labelled_frame(2);
-    frame.labels.as_mut().unwrap().instance_ids.pop();
+    let ids = &mut frame.labels.as_mut().unwrap().instance_ids;
+    ids.truncate(ids.len() - 1);
     let e = svc.client.detect(request(frame, vec![], 0.0)).await.unwrap_err();
     assert_eq!(e.code(), Code::InvalidArgument);
     assert!(e.message().contains("frame.labels") && e.message().contains("expected 256"), "{}", e.message());

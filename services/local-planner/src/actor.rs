@@ -21,7 +21,7 @@ pub struct StepRequest {
     pub pose: Pose2,
     pub camera: Camera,
     /// Little-endian u16 mm, already checked against the camera size.
-    pub depth_mm: Vec<u8>,
+    pub depth_mm: bytes::Bytes,
     pub goal: GoalSpec,
     pub no_go: Vec<[f64; 3]>,
     pub max_speed: f64,

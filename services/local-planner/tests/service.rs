@@ -77,7 +77,7 @@ fn frame(boxes: &Boxes, odom: pb::Pose2D, stamp: f64) -> pb::RgbdFrame {
         stamp,
         camera: Some(camera_to_proto(&camera())),
         rgb: None,
-        depth: Some(pb::DepthImage { width: W, height: H, data_mm: render(boxes) }),
+        depth: Some(pb::DepthImage { width: W, height: H, data_mm: render(boxes).into() }),
         odom: Some(pb::Pose2D { x: odom.x, y: odom.y, theta: odom.theta }),
         odom_twist: None,
         labels: None,
@@ -222,7 +222,8 @@ async fn bad_requests_name_the_field() {
         (
             {
                 let mut r = ok();
-                r.frame.as_mut().unwrap().depth.as_mut().unwrap().data_mm.pop();
+                let d = &mut r.frame.as_mut().unwrap().depth.as_mut().unwrap().data_mm;
+                d.truncate(d.len() - 1);
                 r
             },
             "frame.depth.data_mm",

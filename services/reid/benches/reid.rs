@@ -60,7 +60,8 @@ fn service(c: &mut Criterion) {
     let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let img = frame_image();
-    let rgb = Image { width: 640, height: 480, encoding: ImageEncoding::Rgb8 as i32, data: img.as_raw().clone() };
+    let rgb =
+        Image { width: 640, height: 480, encoding: ImageEncoding::Rgb8 as i32, data: img.as_raw().clone().into() };
     let mut g = c.benchmark_group("service");
     g.sample_size(10);
     for kind in KINDS {
@@ -85,7 +86,8 @@ fn service(c: &mut Criterion) {
             let set = vlnav_reid::services(&opts, &cfg).await.unwrap_or_else(|e| panic!("{e:#}"));
             let mut served = vlnav_runtime::testing::start_client(&cfg, set, ReidServiceClient::new).await.unwrap();
             let crop = image::imageops::crop_imm(&img, 250, 100, 120, 320).to_image();
-            let person = Image { width: 120, height: 320, encoding: ImageEncoding::Rgb8 as i32, data: crop.into_raw() };
+            let person =
+                Image { width: 120, height: 320, encoding: ImageEncoding::Rgb8 as i32, data: crop.into_raw().into() };
             served
                 .client
                 .enroll_person(EnrollPersonRequest { name: "ana".into(), images: vec![person] })

@@ -57,7 +57,7 @@ fn jpeg_frame(file: &str) -> RgbdFrame {
     let bytes = std::fs::read(require(&format!("photos/{file}"))).unwrap();
     RgbdFrame {
         stamp: 1.0,
-        rgb: Some(Image { width: 0, height: 0, encoding: ImageEncoding::Jpeg as i32, data: bytes }),
+        rgb: Some(Image { width: 0, height: 0, encoding: ImageEncoding::Jpeg as i32, data: bytes.into() }),
         ..Default::default()
     }
 }
@@ -65,7 +65,12 @@ fn jpeg_frame(file: &str) -> RgbdFrame {
 fn png(img: &image::RgbImage) -> Image {
     let mut buf = std::io::Cursor::new(Vec::new());
     img.write_to(&mut buf, image::ImageFormat::Png).unwrap();
-    Image { width: img.width(), height: img.height(), encoding: ImageEncoding::Png as i32, data: buf.into_inner() }
+    Image {
+        width: img.width(),
+        height: img.height(),
+        encoding: ImageEncoding::Png as i32,
+        data: buf.into_inner().into(),
+    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

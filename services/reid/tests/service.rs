@@ -21,7 +21,7 @@ fn sim_opts(dir: &std::path::Path) -> vlnav_reid::Options {
 }
 
 fn rgb8(w: u32, h: u32) -> Image {
-    Image { width: w, height: h, encoding: ImageEncoding::Rgb8 as i32, data: vec![128; (w * h * 3) as usize] }
+    Image { width: w, height: h, encoding: ImageEncoding::Rgb8 as i32, data: vec![128; (w * h * 3) as usize].into() }
 }
 
 fn bx(x0: f32, y0: f32, x1: f32, y1: f32) -> BoundingBox {
@@ -58,7 +58,7 @@ fn labelled_frame() -> RgbdFrame {
         labels: Some(LabelImage {
             width: w,
             height: h,
-            instance_ids: ids,
+            instance_ids: ids.into(),
             instances: vec![
                 inst(1, -1, "", "wall"),
                 inst(2, 0, "ana", "object"),
@@ -78,8 +78,8 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
     let cases = [
         (enroll("", vec![rgb8(4, 4)]), "name"),
         (enroll("ana", vec![]), "images"),
-        (enroll("ana", vec![Image { data: vec![0; 4 * 4 * 4], ..rgb8(4, 4) }]), "4-channel"),
-        (enroll("ana", vec![Image { data: vec![0; 10], ..rgb8(4, 4) }]), "images[0].data"),
+        (enroll("ana", vec![Image { data: vec![0; 4 * 4 * 4].into(), ..rgb8(4, 4) }]), "4-channel"),
+        (enroll("ana", vec![Image { data: vec![0; 10].into(), ..rgb8(4, 4) }]), "images[0].data"),
         (
             enroll(
                 "ana",
@@ -87,7 +87,7 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
                     width: 0,
                     height: 0,
                     encoding: ImageEncoding::Jpeg as i32,
-                    data: vec![0xFF, 0xD8, 0xFF, 0xE0, 0, 16],
+                    data: vec![0xFF, 0xD8, 0xFF, 0xE0, 0, 16].into(),
                 }],
             ),
             "cannot decode the JPEG",
@@ -102,7 +102,7 @@ async fn bad_requests_get_invalid_argument_naming_the_field() {
     // A PNG whose declared size disagrees with its content.
     let mut png = std::io::Cursor::new(Vec::new());
     image::RgbImage::new(5, 3).write_to(&mut png, image::ImageFormat::Png).unwrap();
-    let img = Image { width: 6, height: 3, encoding: ImageEncoding::Png as i32, data: png.into_inner() };
+    let img = Image { width: 6, height: 3, encoding: ImageEncoding::Png as i32, data: png.into_inner().into() };
     let err = s.client.enroll_person(enroll("ana", vec![img])).await.unwrap_err();
     assert_eq!(err.code(), Code::InvalidArgument);
     assert!(err.message().contains("decodes to 5×3, but the request says 6×3"), "{}", err.message());

@@ -73,7 +73,7 @@ fn service(c: &mut Criterion) {
     });
     let frame = RgbdFrame {
         camera: Some(camera_to_proto(&cam)),
-        rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb }),
+        rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb.into() }),
         depth: Some(DepthImage { width: W, height: H, data_mm: depth.iter().flat_map(|d| d.to_le_bytes()).collect() }),
         ..Default::default()
     };

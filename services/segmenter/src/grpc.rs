@@ -91,7 +91,7 @@ impl SegmenterGrpc {
         };
         let seg = self.actor.call(|reply| Msg::Segment { job, reply }).await??;
         Ok(SegmentResponse {
-            mask: if req.return_mask { seg.mask } else { Vec::new() },
+            mask: if req.return_mask { seg.mask.into() } else { Default::default() },
             width: camera.width,
             height: camera.height,
             classes: seg.classes,

@@ -96,8 +96,8 @@ fn frame(rgb: Vec<u8>, depth: Vec<u8>) -> RgbdFrame {
             depth_min_m: 0.4,
             depth_max_m: 12.0,
         })),
-        rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb }),
-        depth: Some(DepthImage { width: W, height: H, data_mm: depth }),
+        rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb.into() }),
+        depth: Some(DepthImage { width: W, height: H, data_mm: depth.into() }),
         ..Default::default()
     }
 }
@@ -211,12 +211,12 @@ async fn malformed_frames_get_invalid_argument_naming_the_field() {
                     width: 320,
                     height: 240,
                     encoding: ImageEncoding::Rgb8 as i32,
-                    data: vec![0; 320 * 240 * 3],
+                    data: vec![0; 320 * 240 * 3].into(),
                 })
             }),
             "frame.rgb",
         ),
-        (with(&|f| f.rgb.as_mut().unwrap().data = vec![0; (W * H * 4) as usize]), "4-channel"),
+        (with(&|f| f.rgb.as_mut().unwrap().data = vec![0; (W * H * 4) as usize].into()), "4-channel"),
         (with(&|f| f.depth.as_mut().unwrap().width = 320), "frame.depth"),
         (with(&|f| f.depth.as_mut().unwrap().data_mm.truncate(1000)), "frame.depth.data_mm"),
         (with(&|f| f.depth = None), "frame.depth"),
@@ -235,7 +235,8 @@ async fn malformed_frames_get_invalid_argument_naming_the_field() {
     let mut png = std::io::Cursor::new(Vec::new());
     image::RgbImage::from_raw(W, H, rgb).unwrap().write_to(&mut png, image::ImageFormat::Png).unwrap();
     let req = with(&|f| {
-        f.rgb = Some(Image { width: 0, height: 0, encoding: ImageEncoding::Png as i32, data: png.get_ref().clone() })
+        f.rgb =
+            Some(Image { width: 0, height: 0, encoding: ImageEncoding::Png as i32, data: png.get_ref().clone().into() })
     });
     let r = client.segment(req).await.unwrap().into_inner();
     assert!(r.class_pixels[0] > 2000);
@@ -273,7 +274,7 @@ async fn the_simulation_backend_reads_semantics_from_the_label_image() {
     f.labels = Some(LabelImage {
         width: W,
         height: H,
-        instance_ids: ids,
+        instance_ids: ids.into(),
         instances: vec![inst(1, "floor"), inst(7, "restricted_zone"), inst(8, "restricted_zone")],
     });
     let r = client

@@ -51,7 +51,7 @@ fn frame(object: (u32, u32, u32, u32), object_m: f64, odom: pb::Pose2D, stamp: f
             depth_max_m: 10.0,
         })),
         rgb: None,
-        depth: Some(pb::DepthImage { width: W, height: H, data_mm: encode_depth_mm(&depth) }),
+        depth: Some(pb::DepthImage { width: W, height: H, data_mm: encode_depth_mm(&depth).into() }),
         odom: Some(odom),
         odom_twist: None,
         labels: None,
@@ -176,7 +176,7 @@ async fn box_without_depth_is_no_depth_not_nan() {
     let mut s = start().await;
     // Everything at 12 m: beyond depth_max.
     let mut f = frame((0, 0, 0, 0), 0.0, pose(0.0, 0.0, 0.0), 1.0);
-    f.depth.as_mut().unwrap().data_mm = encode_depth_mm(&vec![12.0; (W * H) as usize]);
+    f.depth.as_mut().unwrap().data_mm = encode_depth_mm(&vec![12.0; (W * H) as usize]).into();
     let r =
         s.client.target_goal(target_request("none", f, bbox(100.0, 100.0, 200.0, 200.0))).await.unwrap().into_inner();
     assert_eq!(r.status(), pb::EstimateStatus::NoDepth);

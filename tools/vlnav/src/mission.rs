@@ -157,7 +157,7 @@ pub async fn run_mission(args: &MissionArgs, out: &mut (impl Write + Send)) -> a
         (_, Some(path)) => submit_mission_request::Instruction::Audio(Audio {
             format: AudioFormat::Wav as i32,
             sample_rate: 0,
-            data: std::fs::read(path).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?,
+            data: std::fs::read(path).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", path.display()))?.into(),
         }),
         (Some(t), None) => submit_mission_request::Instruction::Text(t.clone()),
         (None, None) => anyhow::bail!("give an instruction, or --audio FILE.wav"),

@@ -39,7 +39,7 @@ pub fn nanodet_options() -> vlnav_detector::Options {
 }
 
 pub fn image(encoding: v1::ImageEncoding, width: u32, height: u32, data: Vec<u8>) -> v1::Image {
-    v1::Image { width, height, encoding: encoding as i32, data }
+    v1::Image { width, height, encoding: encoding as i32, data: data.into() }
 }
 
 pub fn rgb_frame(img: v1::Image) -> v1::RgbdFrame {

@@ -76,7 +76,7 @@ pub async fn serve(opts: Options) -> Served {
 /// `data` as a stream of chunks of at most `chunk` bytes; the first names the format.
 pub fn chunks(format: AudioFormat, sample_rate: u32, data: &[u8], chunk: usize) -> Vec<AudioChunk> {
     let mut out: Vec<AudioChunk> =
-        data.chunks(chunk.max(1)).map(|d| AudioChunk { format: 0, sample_rate: 0, data: d.to_vec() }).collect();
+        data.chunks(chunk.max(1)).map(|d| AudioChunk { format: 0, sample_rate: 0, data: d.to_vec().into() }).collect();
     if out.is_empty() {
         out.push(AudioChunk::default());
     }
