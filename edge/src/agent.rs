@@ -24,7 +24,7 @@ use vlnav_sim::{Simulator, Twist, load_scenario};
 
 use crate::convert::{self, FrameMeta, RobotDescription};
 use crate::safety::{Backoff, CommandGate, Governor, Limits, Verdict};
-use crate::{EdgeOptions, Hooks, StepRecord};
+use crate::{EdgeOptions, Hooks, LinkEvent, StepRecord};
 
 /// Why a session ended.
 #[derive(Debug)]
@@ -372,6 +372,12 @@ async fn hold_stopped(
     }
 }
 
+fn timing(hooks: &Hooks, event: LinkEvent) {
+    if let Some(t) = &hooks.timing {
+        let _ = t.send(event);
+    }
+}
+
 fn observe(
     hooks: &Hooks,
     robot: &SimRobot,
@@ -491,7 +497,10 @@ impl Session<'_> {
                 _ = shutdown.cancelled() => return SessionEnd::Finished,
                 m = link.recv() => match m {
                     Err(e) => return SessionEnd::Lost(e),
-                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => last.take(gov, v),
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => {
+                        timing(hooks, LinkEvent::Command { stamp: v.stamp, idle: v.idle, at: std::time::Instant::now() });
+                        last.take(gov, v)
+                    }
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Mission(a)) }) => last.announce(&a),
                     Ok(_) => {}
@@ -515,10 +524,17 @@ impl Session<'_> {
                     }
                     let (frame, odo, _, _) = robot.capture();
                     let stamp = frame.frame.as_ref().map(|f| f.stamp);
+                    let mut queued = true;
                     for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
-                        if let Err(e) = link.offer(msg) { return SessionEnd::Lost(e); }
+                        match link.offer(msg) {
+                            Ok(q) => queued = q,
+                            Err(e) => return SessionEnd::Lost(e),
+                        }
                     }
-                    if let Some(stamp) = stamp { last.frame_sent(stamp); }
+                    if let Some(stamp) = stamp {
+                        last.frame_sent(stamp);
+                        timing(hooks, LinkEvent::Frame { stamp, queued, at: std::time::Instant::now() });
+                    }
                 }
             }
         }

@@ -251,6 +251,20 @@ pub struct Hooks {
     /// wall time). A harness closes it, submits a mission, and opens it, so
     /// the mission starts on the same frame in every run of the same seed.
     pub idle_gate: Option<IdleGate>,
+    /// Wall-clock moments of the link, for measuring the control cycle
+    /// (`vlnav bench fleet`): each frame offered and each command received.
+    pub timing: Option<mpsc::UnboundedSender<LinkEvent>>,
+}
+
+/// A moment on the link to the gateway, on the wall clock (the only place
+/// the agent reports it: a benchmark measures frame in → command out).
+#[derive(Clone, Copy, Debug)]
+pub enum LinkEvent {
+    /// The frame stamped `stamp` was handed to the link (`queued`), or
+    /// dropped because the link's queue was full.
+    Frame { stamp: f64, queued: bool, at: std::time::Instant },
+    /// A velocity command answering the frame stamped `stamp` arrived.
+    Command { stamp: f64, idle: bool, at: std::time::Instant },
 }
 
 /// A gate a lockstep robot waits at between an idle frame and the next one.

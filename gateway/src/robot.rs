@@ -219,6 +219,32 @@ impl Fleet {
     }
 }
 
+/// Takes what is already queued behind a frame: the newest frame of each
+/// connection wins, every other message is kept in order. Returns the frame
+/// to act on, the other messages (handled first) and how many frames were
+/// passed over.
+fn newest_frame(
+    conn: u64,
+    frame: Box<SensorFrame>,
+    rx: &mut mpsc::Receiver<RobotMsg>,
+) -> (RobotMsg, Vec<RobotMsg>, u64) {
+    let mut newest = RobotMsg::Frame { conn, frame };
+    let mut others = Vec::new();
+    let mut skipped = 0;
+    // Only what is queued now: a steady stream of frames cannot keep this loop going.
+    for _ in 0..rx.len() {
+        match rx.try_recv() {
+            Ok(RobotMsg::Frame { conn: c, frame: f }) if c == conn => {
+                skipped += 1;
+                newest = RobotMsg::Frame { conn: c, frame: f };
+            }
+            Ok(other) => others.push(other),
+            Err(_) => break,
+        }
+    }
+    (newest, others, skipped)
+}
+
 fn clear_active(info: &Mutex<RobotInfo>) {
     if let Ok(mut i) = info.lock() {
         i.active_mission_id.clear();
@@ -253,8 +279,27 @@ impl RobotActor {
 
     async fn run(mut self, mut rx: mpsc::Receiver<RobotMsg>) {
         while let Some(msg) = rx.recv().await {
-            self.handle(msg).await;
+            match msg {
+                RobotMsg::Frame { conn, frame } if !self.lockstep() => {
+                    // A real-time robot's world did not wait for this frame:
+                    // act on the newest one queued and pass over the others.
+                    let (frame, others, skipped) = newest_frame(conn, frame, &mut rx);
+                    if skipped > 0 {
+                        self.update(|i| i.frames_skipped += skipped);
+                        tracing::debug!(robot = %self.robot_id, skipped, "newer frames were waiting; older ones passed over");
+                    }
+                    for other in others {
+                        self.handle(other).await;
+                    }
+                    self.handle(frame).await;
+                }
+                msg => self.handle(msg).await,
+            }
         }
+    }
+
+    fn lockstep(&self) -> bool {
+        self.info.lock().map(|i| i.lockstep).unwrap_or(false)
     }
 
     async fn handle(&mut self, msg: RobotMsg) {
@@ -460,7 +505,7 @@ impl RobotActor {
                 _ => VelocityCommand::default(),
             };
             let mission_id = mission.as_ref().map(|m| m.mission_id.clone());
-            let lockstep = self.info.lock().map(|i| i.lockstep).unwrap_or(false);
+            let lockstep = self.lockstep();
             fleet
                 .viz
                 .frame(FrameView { robot_id: self.robot_id.clone(), frame, command, mission, seen }, lockstep)
@@ -469,5 +514,43 @@ impl RobotActor {
                 fleet.viz.end_mission(&self.robot_id, &id);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use vlnav_proto::v1::RgbdFrame;
+
+    fn frame(conn: u64, seq: u64) -> RobotMsg {
+        let f = SensorFrame { frame: Some(RgbdFrame { seq, ..Default::default() }), truth: None };
+        RobotMsg::Frame { conn, frame: Box::new(f) }
+    }
+
+    fn seq(msg: &RobotMsg) -> Option<(u64, u64)> {
+        match msg {
+            RobotMsg::Frame { conn, frame } => Some((*conn, frame.frame.as_ref().unwrap().seq)),
+            _ => None,
+        }
+    }
+
+    #[tokio::test]
+    async fn the_newest_queued_frame_wins_and_other_messages_keep_their_order() {
+        let (tx, mut rx) = mpsc::channel(16);
+        tx.send(frame(1, 2)).await.unwrap();
+        tx.send(RobotMsg::Release { mission_id: "a".into() }).await.unwrap();
+        tx.send(frame(1, 3)).await.unwrap();
+        // A frame of an older connection is not a newer frame of this one.
+        tx.send(frame(0, 9)).await.unwrap();
+        tx.send(RobotMsg::Detach { conn: 1, reason: "gone".into() }).await.unwrap();
+        let RobotMsg::Frame { conn, frame: first } = frame(1, 1) else { unreachable!() };
+        let (newest, others, skipped) = newest_frame(conn, first, &mut rx);
+        assert_eq!(seq(&newest), Some((1, 3)));
+        assert_eq!(skipped, 2, "frames 1 and 2 are passed over");
+        assert_eq!(others.len(), 3);
+        assert!(matches!(&others[0], RobotMsg::Release { mission_id } if mission_id == "a"));
+        assert_eq!(seq(&others[1]), Some((0, 9)));
+        assert!(matches!(&others[2], RobotMsg::Detach { conn: 1, .. }));
+        assert!(rx.try_recv().is_err(), "everything queued was taken");
     }
 }

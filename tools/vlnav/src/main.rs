@@ -8,9 +8,7 @@ use vlnav::mission::{MissionArgs, run_mission};
 use vlnav::up::{UpArgs, up};
 use vlnav_runtime::{CancellationToken, ports, telemetry};
 
-/// The paper's Case 2 instruction (docs/design.md §2).
-pub const CASE_2: &str = "Buddy take left turn, move 4 m ahead, then find the standing person to reach close to it, \
-In your right you may see the visitor chair follow it. Finally go at spot where bicycle is standing.";
+use vlnav::CASE_2;
 
 #[derive(Subcommand)]
 enum CredentialsCmd {
@@ -51,6 +49,9 @@ enum Cmd {
     Replay(vlnav::replay::ReplayArgs),
     /// Per-stage latency of a mission from its distributed trace.
     Profile(vlnav_traces::ProfileArgs),
+    /// Benchmarks: `vlnav bench fleet` (robots per gateway), `vlnav bench plot`.
+    #[command(subcommand)]
+    Bench(vlnav::bench::BenchCmd),
     /// Run a detector on photos: one line per box (or JSON), annotated copies with --out.
     Detect(vlnav_detector::cli::DetectArgs),
     /// Measure the perception error model on the real NanoDet and MobileNetV2
@@ -229,6 +230,22 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Profile(args) => {
             println!("{}", vlnav_traces::run_profile(args).await?);
             Ok(())
+        }
+        Cmd::Bench(vlnav::bench::BenchCmd::Fleet(args)) => {
+            let _telemetry = telemetry::init("vlnav")?;
+            vlnav::bench::fleet(&args, &mut std::io::stdout()).await.map(|_| ())
+        }
+        Cmd::Bench(vlnav::bench::BenchCmd::Plot(args)) => vlnav::bench::plot(&args),
+        Cmd::Bench(vlnav::bench::BenchCmd::Robots(args)) => {
+            // Each real robot has its own computer. Here they share two cores,
+            // so many worker threads let the OS preempt a robot's rendering
+            // when another robot's command arrives, instead of the command
+            // waiting for a worker (which the benchmark would count as latency).
+            tokio::task::spawn_blocking(move || {
+                let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(16).enable_all().build()?;
+                rt.block_on(vlnav::bench::robots(&args))
+            })
+            .await?
         }
         Cmd::Detect(args) => {
             tokio::task::spawn_blocking(move || vlnav_detector::cli::run_detect(&args, &mut std::io::stdout()))

@@ -1,0 +1,935 @@
+//! `vlnav bench fleet`: many simulated robots in real time on one gateway
+//! (docs/architecture.md, "Fleet benchmark").
+//!
+//! Two processes, as in a deployment: this one runs the gateway and every
+//! stage (the [`up`] stack, with TLS and tokens unless `--insecure`); a child
+//! (`vlnav bench robots`, hidden) runs the robots — one edge agent and one
+//! simulator per robot, each attached over its own gRPC connection with its
+//! own certificate, stepping in real time at the frame rate. Each robot has a
+//! dispatcher here, with its own operator token, that keeps a mission running
+//! on it. The child measures every control cycle on the wall clock, frame
+//! handed to the link → the command answering it (the agent's
+//! [`LinkEvent`]s), so no clocks are compared across processes. CPU and
+//! memory are read from `/proc` for each process.
+
+use std::collections::VecDeque;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use anyhow::Context;
+use serde::{Deserialize, Serialize};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
+use tokio::sync::mpsc;
+use vlnav_edge_agent::{EdgeOptions, Hooks, LinkEvent};
+use vlnav_gateway::auth::{Role, TokenEntry, TokenFile};
+use vlnav_proto::v1::{
+    GetMissionRequest, ListRobotsRequest, MissionState, SubmitMissionRequest, WatchMissionRequest,
+    fleet_service_client::FleetServiceClient, mission_service_client::MissionServiceClient,
+    submit_mission_request::Instruction,
+};
+use vlnav_runtime::CancellationToken;
+use vlnav_runtime::client::channel_with;
+use vlnav_runtime::perception::PerceptionMode;
+use vlnav_runtime::security::{ClientSecurity, DevPki, new_token, token_hash};
+
+use crate::up::{StackSecurity, UpArgs, up};
+
+/// What each robot is told, in turn: the paper's Case 2 (two searches, a
+/// follow and a goal: every stage works), then a way back, then a short move.
+pub const MISSIONS: [&str; 3] = [crate::CASE_2, "go back 3 m", "take a right turn and move 2 m ahead"];
+
+/// Robot ids of a benchmark run.
+fn robot_id(i: usize) -> String {
+    format!("bench-{i:03}")
+}
+
+#[derive(clap::Subcommand)]
+pub enum BenchCmd {
+    /// N simulated robots in real time on one gateway: control-cycle latency,
+    /// frames dropped or late, CPU and memory (docs/architecture.md).
+    Fleet(FleetArgs),
+    /// Draws `vlnav bench fleet --json` lines (one file per series) as an SVG
+    /// plot of cycle latency against the number of robots.
+    Plot(PlotArgs),
+    /// The robots' side of `bench fleet` (started by it).
+    #[command(hide = true)]
+    Robots(RobotsArgs),
+}
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct FleetArgs {
+    /// Robots attached at once.
+    #[arg(long, default_value_t = 10)]
+    pub robots: usize,
+    /// Run each count in turn (for example 1,10,50,100,200), one report each.
+    #[arg(long, value_delimiter = ',')]
+    pub sweep: Vec<usize>,
+    /// Seconds measured, after every robot is attached and driving.
+    #[arg(long, default_value_t = 30.0)]
+    pub seconds: f64,
+    /// Seconds between the first missions and the measurement.
+    #[arg(long, default_value_t = 5.0)]
+    pub warmup: f64,
+    /// One JSON object per run on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Perception of the stages: `oracle` (simulation backends, ground truth),
+    /// `realistic` (the measured error model and the real segmenter).
+    #[arg(long, value_enum, default_value_t = PerceptionMode::Oracle)]
+    pub perception: PerceptionMode,
+    /// Camera image size of every robot (the D455 streams 640×480).
+    #[arg(long, default_value_t = 640)]
+    pub width: u32,
+    #[arg(long, default_value_t = 480)]
+    pub height: u32,
+    /// Camera frames per second of each robot.
+    #[arg(long, default_value_t = 10.0)]
+    pub frame_rate: f64,
+    /// World of every robot (each robot has its own copy).
+    #[arg(long, default_value = "demo")]
+    pub scenario: String,
+    /// While measuring, a client floods SubmitMission from 16 concurrent
+    /// calls with its own token.
+    #[arg(long)]
+    pub flood: bool,
+    /// Plaintext and no tokens (and so no per-caller submission limit).
+    #[arg(long)]
+    pub insecure: bool,
+}
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct RobotsArgs {
+    #[arg(long)]
+    pub gateway: String,
+    /// The stack's credentials (the robots' certificates); absent: plaintext.
+    #[arg(long)]
+    pub security_dir: Option<PathBuf>,
+    #[arg(long)]
+    pub robots: usize,
+    #[arg(long)]
+    pub width: u32,
+    #[arg(long)]
+    pub height: u32,
+    #[arg(long)]
+    pub frame_rate: f64,
+    #[arg(long)]
+    pub scenario: String,
+}
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct PlotArgs {
+    /// Files of `vlnav bench fleet --json` lines; each is one series.
+    #[arg(required = true)]
+    pub series: Vec<PathBuf>,
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Latency goal drawn as a line, milliseconds.
+    #[arg(long, default_value_t = 50.0)]
+    pub goal_ms: f64,
+}
+
+/// The robots' side of a run, as the child reports it.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct RobotsSummary {
+    pub seconds: f64,
+    pub frames_sent: u64,
+    pub dropped_at_edge: u64,
+    pub unanswered: u64,
+    pub cycles: u64,
+    pub idle_cycles: u64,
+    pub late: u64,
+    pub cycle_p50_ms: f64,
+    pub cycle_p99_ms: f64,
+    pub cycle_max_ms: f64,
+    pub worst_robot_p99_ms: f64,
+    pub cpu_percent: f64,
+    pub rss_mib: f64,
+}
+
+/// Submissions of the flooding client while measuring.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct FloodReport {
+    pub requests: u64,
+    pub resource_exhausted: u64,
+    pub unavailable: u64,
+    pub admitted: u64,
+    pub other: u64,
+    /// Slowest answer to a flooding call, milliseconds.
+    pub slowest_answer_ms: f64,
+}
+
+/// One run of `vlnav bench fleet`.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct FleetReport {
+    pub robots: usize,
+    pub seconds: f64,
+    pub perception: String,
+    pub width: u32,
+    pub height: u32,
+    pub frame_rate: f64,
+    /// Frames each robot actually sent per second (below `frame_rate` when
+    /// the robots' own simulation cannot keep up).
+    pub achieved_frame_rate: f64,
+    pub frames_sent: u64,
+    /// Frames answered while a mission drove the robot: the control cycles measured.
+    pub cycles: u64,
+    pub idle_cycles: u64,
+    pub cycle_p50_ms: f64,
+    pub cycle_p99_ms: f64,
+    pub cycle_max_ms: f64,
+    pub worst_robot_p99_ms: f64,
+    /// Answered after more than one frame period.
+    pub late_frames: u64,
+    /// Never answered: dropped at the robot (link queue full) or passed over
+    /// by the gateway for a newer frame.
+    pub dropped_frames: u64,
+    pub dropped_at_edge: u64,
+    pub skipped_by_gateway: u64,
+    pub missions_started: u64,
+    pub missions_succeeded: u64,
+    pub missions_failed: u64,
+    pub submissions_refused: u64,
+    /// Gateway and every stage (one process).
+    pub stack_cpu_percent: f64,
+    pub stack_rss_mib: f64,
+    /// The simulated robots (the other process).
+    pub robots_cpu_percent: f64,
+    pub robots_rss_mib: f64,
+    pub flood: Option<FloodReport>,
+}
+
+impl std::fmt::Display for FleetReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        writeln!(
+            f,
+            "{} robots, {}x{} at {} fps ({:.1} achieved), {} perception, {:.0} s measured{}",
+            self.robots,
+            self.width,
+            self.height,
+            self.frame_rate,
+            self.achieved_frame_rate,
+            self.perception,
+            self.seconds,
+            if self.flood.is_some() { ", while a client floods SubmitMission" } else { "" }
+        )?;
+        writeln!(
+            f,
+            "  control cycle (frame in → command out): p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; worst robot's p99 {:.1} ms",
+            self.cycle_p50_ms, self.cycle_p99_ms, self.cycle_max_ms, self.worst_robot_p99_ms
+        )?;
+        writeln!(
+            f,
+            "  frames: {} sent, {} mission cycles, {} idle; {} late (> one frame period), {} dropped ({} at the robot, {} passed over for a newer one)",
+            self.frames_sent,
+            self.cycles,
+            self.idle_cycles,
+            self.late_frames,
+            self.dropped_frames,
+            self.dropped_at_edge,
+            self.skipped_by_gateway
+        )?;
+        writeln!(
+            f,
+            "  missions: {} started, {} succeeded, {} failed; {} submissions refused",
+            self.missions_started, self.missions_succeeded, self.missions_failed, self.submissions_refused
+        )?;
+        write!(
+            f,
+            "  CPU: stack {:.0} %, robots {:.0} % (100 % = one core); memory: stack {:.0} MiB, robots {:.0} MiB",
+            self.stack_cpu_percent, self.robots_cpu_percent, self.stack_rss_mib, self.robots_rss_mib
+        )?;
+        if let Some(fl) = &self.flood {
+            write!(
+                f,
+                "\n  flood: {} calls, {} RESOURCE_EXHAUSTED, {} UNAVAILABLE, {} admitted, {} other; slowest answer {:.1} ms",
+                fl.requests, fl.resource_exhausted, fl.unavailable, fl.admitted, fl.other, fl.slowest_answer_ms
+            )?;
+        }
+        Ok(())
+    }
+}
+
+/// CPU seconds (user + system, every thread) and resident memory of a process.
+fn proc_usage(pid: u32) -> anyhow::Result<(f64, f64)> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).context("reading /proc (Linux only)")?;
+    // Fields after the command name, which is in parentheses and may hold spaces.
+    let rest = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of stat(5): 12 and 13 after the name and state.
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // USER_HZ is 100 on every Linux architecture vlnav runs on.
+    let cpu = (ticks(11) + ticks(12)) / 100.0;
+    let status = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap_or_default();
+    let rss_kib = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmRSS:"))
+        .and_then(|v| v.split_whitespace().next())
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or(0.0);
+    Ok((cpu, rss_kib / 1024.0))
+}
+
+/// The `q` quantile (0–1) of sorted values; 0 when empty.
+fn quantile(sorted: &[f64], q: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    let i = ((q * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len()) - 1;
+    sorted[i]
+}
+
+/// Cycle bookkeeping of one robot, fed by its agent's link events.
+#[derive(Debug, Default)]
+struct CycleStats {
+    /// Frames handed to the link and not yet answered, oldest first, and
+    /// whether each was sent while measuring (only those are counted).
+    pending: VecDeque<(f64, Instant, bool)>,
+    sent: u64,
+    dropped_at_edge: u64,
+    unanswered: u64,
+    idle: u64,
+    late: u64,
+    cycles_ms: Vec<f64>,
+}
+
+impl CycleStats {
+    /// Records `event`; counts only while `measuring`.
+    fn on(&mut self, event: LinkEvent, measuring: bool, period: f64) {
+        match event {
+            LinkEvent::Frame { stamp, queued, at } => {
+                if measuring {
+                    self.sent += 1;
+                    self.dropped_at_edge += u64::from(!queued);
+                }
+                if queued {
+                    self.pending.push_back((stamp, at, measuring));
+                }
+            }
+            LinkEvent::Command { stamp, idle, at } => {
+                // Older frames still waiting were passed over: the gateway answers the newest.
+                while let Some(&(s, _, counted)) = self.pending.front() {
+                    if s >= stamp - 1e-9 {
+                        break;
+                    }
+                    self.pending.pop_front();
+                    self.unanswered += u64::from(counted && measuring);
+                }
+                let Some(&(s, sent, counted)) = self.pending.front() else { return };
+                if (s - stamp).abs() > 1e-9 {
+                    return;
+                }
+                self.pending.pop_front();
+                if !(counted && measuring) {
+                    return;
+                }
+                let ms = at.saturating_duration_since(sent).as_secs_f64() * 1e3;
+                if ms > period * 1e3 {
+                    self.late += 1;
+                }
+                if idle {
+                    self.idle += 1;
+                } else {
+                    self.cycles_ms.push(ms);
+                }
+            }
+        }
+    }
+}
+
+/// `vlnav bench robots`: runs the robots until told `stop` on stdin, then
+/// prints one [`RobotsSummary`] line. Measures between `start` and `stop`.
+pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
+    let pki = match &args.security_dir {
+        Some(dir) => Some(DevPki::ensure(dir, &[])?),
+        None => None,
+    };
+    let measuring = Arc::new(AtomicBool::new(false));
+    let shutdown = CancellationToken::new();
+    let period = 1.0 / args.frame_rate;
+    let mut stats = Vec::new();
+    for i in 0..args.robots {
+        let id = robot_id(i);
+        let mut opts = EdgeOptions {
+            gateway: args.gateway.clone(),
+            robot_id: id.clone(),
+            scenario: args.scenario.clone(),
+            seed: i as u64,
+            lockstep: false,
+            frame_rate: args.frame_rate,
+            width: Some(args.width),
+            height: Some(args.height),
+            ..EdgeOptions::default()
+        };
+        if let Some(pki) = &pki {
+            opts.tls = pki.client_args(Some((pki.robot_cert(&id), pki.robot_key(&id))));
+        }
+        let (tx, mut rx) = mpsc::unbounded_channel();
+        let hooks = Hooks { timing: Some(tx), ..Hooks::default() };
+        let token = shutdown.clone();
+        tokio::spawn(async move {
+            if let Err(e) = vlnav_edge_agent::run_with(opts, token, hooks).await {
+                eprintln!("robot {id}: {e:#}");
+            }
+        });
+        let s = Arc::new(Mutex::new(CycleStats::default()));
+        stats.push(s.clone());
+        let m = measuring.clone();
+        tokio::spawn(async move {
+            while let Some(e) = rx.recv().await {
+                let on = m.load(Ordering::Relaxed);
+                s.lock().unwrap_or_else(|p| p.into_inner()).on(e, on, period);
+            }
+        });
+    }
+    let pid = std::process::id();
+    let mut lines = tokio::io::BufReader::new(tokio::io::stdin()).lines();
+    let mut started = None;
+    while let Some(line) = lines.next_line().await? {
+        match line.trim() {
+            "start" => {
+                started = Some((Instant::now(), proc_usage(pid)?.0));
+                measuring.store(true, Ordering::Relaxed);
+            }
+            "stop" => break,
+            _ => {}
+        }
+    }
+    measuring.store(false, Ordering::Relaxed);
+    let (cpu1, rss) = proc_usage(pid)?;
+    shutdown.cancel();
+    let (t0, cpu0) = started.unwrap_or((Instant::now(), cpu1));
+    let seconds = t0.elapsed().as_secs_f64();
+    let mut summary = RobotsSummary { seconds, rss_mib: rss, ..Default::default() };
+    summary.cpu_percent = if seconds > 0.0 { (cpu1 - cpu0) / seconds * 100.0 } else { 0.0 };
+    let mut all = Vec::new();
+    for s in &stats {
+        let mut s = s.lock().unwrap_or_else(|p| p.into_inner());
+        summary.frames_sent += s.sent;
+        summary.dropped_at_edge += s.dropped_at_edge;
+        summary.unanswered += s.unanswered;
+        summary.idle_cycles += s.idle;
+        summary.late += s.late;
+        s.cycles_ms.sort_by(f64::total_cmp);
+        summary.worst_robot_p99_ms = summary.worst_robot_p99_ms.max(quantile(&s.cycles_ms, 0.99));
+        all.extend_from_slice(&s.cycles_ms);
+    }
+    all.sort_by(f64::total_cmp);
+    summary.cycles = all.len() as u64;
+    summary.cycle_p50_ms = quantile(&all, 0.5);
+    summary.cycle_p99_ms = quantile(&all, 0.99);
+    summary.cycle_max_ms = all.last().copied().unwrap_or(0.0);
+    println!("{}", serde_json::to_string(&summary)?);
+    Ok(())
+}
+
+#[derive(Default)]
+struct MissionCounts {
+    started: AtomicU64,
+    succeeded: AtomicU64,
+    failed: AtomicU64,
+    refused: AtomicU64,
+}
+
+/// Keeps a mission running on `robot`: submit, watch it to its end, next.
+async fn dispatch(
+    gateway: String,
+    security: ClientSecurity,
+    robot: String,
+    first: usize,
+    counts: Arc<MissionCounts>,
+    stop: CancellationToken,
+) -> anyhow::Result<()> {
+    let mut client = MissionServiceClient::new(channel_with(&gateway, &security)?);
+    let mut i = first;
+    while !stop.is_cancelled() {
+        let text = MISSIONS[i % MISSIONS.len()];
+        i += 1;
+        let request = SubmitMissionRequest {
+            robot_id: robot.clone(),
+            instruction: Some(Instruction::Text(text.into())),
+            dry_run: false,
+        };
+        let submitted = tokio::select! {
+            _ = stop.cancelled() => return Ok(()),
+            r = client.submit_mission(request) => r,
+        };
+        let id = match submitted {
+            Ok(r) => r.into_inner().mission_id,
+            Err(status) => {
+                counts.refused.fetch_add(1, Ordering::Relaxed);
+                tracing::debug!(robot, "submission refused: {}", status.message());
+                tokio::select! {
+                    _ = stop.cancelled() => return Ok(()),
+                    _ = tokio::time::sleep(Duration::from_secs(1)) => continue,
+                }
+            }
+        };
+        counts.started.fetch_add(1, Ordering::Relaxed);
+        let follow = async {
+            let mut events = client.watch_mission(WatchMissionRequest { mission_id: id.clone() }).await?.into_inner();
+            while events.message().await?.is_some() {}
+            anyhow::Ok(client.get_mission(GetMissionRequest { mission_id: id.clone() }).await?.into_inner())
+        };
+        let mission = tokio::select! {
+            _ = stop.cancelled() => return Ok(()),
+            m = follow => m,
+        };
+        match mission {
+            Ok(m) if m.state == MissionState::Succeeded as i32 => counts.succeeded.fetch_add(1, Ordering::Relaxed),
+            _ => counts.failed.fetch_add(1, Ordering::Relaxed),
+        };
+    }
+    Ok(())
+}
+
+/// Floods SubmitMission from 16 concurrent loops until `stop`.
+async fn flood(gateway: String, security: ClientSecurity, robot: String, stop: CancellationToken) -> FloodReport {
+    let report = Arc::new(Mutex::new(FloodReport::default()));
+    let mut tasks = Vec::new();
+    for _ in 0..16 {
+        let (gateway, security, robot, stop, report) =
+            (gateway.clone(), security.clone(), robot.clone(), stop.clone(), report.clone());
+        tasks.push(tokio::spawn(async move {
+            let Ok(channel) = channel_with(&gateway, &security) else { return };
+            let mut client = MissionServiceClient::new(channel);
+            while !stop.is_cancelled() {
+                let t = Instant::now();
+                let r = client
+                    .submit_mission(SubmitMissionRequest {
+                        robot_id: robot.clone(),
+                        instruction: Some(Instruction::Text("move 1 m ahead".into())),
+                        dry_run: true,
+                    })
+                    .await;
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                let mut rep = report.lock().unwrap_or_else(|p| p.into_inner());
+                rep.requests += 1;
+                rep.slowest_answer_ms = rep.slowest_answer_ms.max(ms);
+                match r {
+                    Ok(_) => rep.admitted += 1,
+                    Err(s) if s.code() == tonic::Code::ResourceExhausted => rep.resource_exhausted += 1,
+                    Err(s) if s.code() == tonic::Code::Unavailable => rep.unavailable += 1,
+                    Err(_) => rep.other += 1,
+                }
+            }
+        }));
+    }
+    for t in tasks {
+        let _ = t.await;
+    }
+    report.lock().unwrap_or_else(|p| p.into_inner()).clone()
+}
+
+/// Adds one operator token per robot (each robot's dispatcher is its own
+/// caller, as separate users would be) and one for the flooding client.
+fn issue_tokens(sec: &StackSecurity, robots: &[String]) -> anyhow::Result<(Vec<String>, String)> {
+    let path = &sec.tokens_file;
+    let mut file = TokenFile::parse(&std::fs::read_to_string(path)?, path)?;
+    let mut entry = |name: String, robots: Option<Vec<String>>| {
+        let token = new_token();
+        file.tokens.push(TokenEntry {
+            name,
+            role: Role::Operator,
+            sha256: token_hash(&token),
+            robots,
+            expires_unix: None,
+        });
+        token
+    };
+    let tokens = robots.iter().map(|r| entry(format!("dispatcher-{r}"), Some(vec![r.clone()]))).collect();
+    let flood = entry("flooding-client".into(), None);
+    std::fs::write(path, file.to_toml())?;
+    Ok((tokens, flood))
+}
+
+/// One run of `vlnav bench fleet` with `n` robots.
+pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport> {
+    anyhow::ensure!(n >= 1, "--robots must be at least 1");
+    anyhow::ensure!(
+        args.seconds > 0.0 && args.seconds.is_finite() && args.warmup >= 0.0,
+        "--seconds must be positive and --warmup not negative"
+    );
+    anyhow::ensure!(!(args.flood && args.insecure), "--flood needs tokens (the limit is per caller): drop --insecure");
+    let data = tempfile::tempdir()?;
+    let ids: Vec<String> = (0..n).map(robot_id).collect();
+    let security_dir = data.path().join("security");
+    let (tokens, flood_token) = if args.insecure {
+        (Vec::new(), String::new())
+    } else {
+        let refs: Vec<&str> = ids.iter().map(String::as_str).collect();
+        let sec = StackSecurity::ensure(&security_dir, &refs)?;
+        issue_tokens(&sec, &ids)?
+    };
+    let up_args = UpArgs {
+        no_robot: true,
+        ephemeral_ports: true,
+        data_dir: data.path().to_path_buf(),
+        insecure: args.insecure,
+        perception: args.perception,
+        // As deployed: 60 a minute per caller (each dispatcher is one caller).
+        submit_per_minute: if args.insecure { 0 } else { 60 },
+        ..UpArgs::default()
+    };
+    let stack = up(&up_args).await?;
+    let uri = stack.gateway_uri();
+    let caller = |token: &str| -> anyhow::Result<ClientSecurity> {
+        match &stack.security {
+            Some(s) => Ok(ClientSecurity::new(s.pki.client_args(None).load()?, Some(token.to_string()))),
+            None => Ok(ClientSecurity::none()),
+        }
+    };
+
+    let mut child = tokio::process::Command::new(std::env::current_exe()?);
+    child
+        .args(["bench", "robots", "--gateway", &uri, "--robots", &n.to_string()])
+        .args(["--width", &args.width.to_string(), "--height", &args.height.to_string()])
+        .args(["--frame-rate", &args.frame_rate.to_string(), "--scenario", &args.scenario])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .kill_on_drop(true);
+    if !args.insecure {
+        child.arg("--security-dir").arg(&security_dir);
+    }
+    let mut child = child.spawn().context("starting the robots' process")?;
+    let mut to_child = child.stdin.take().context("no stdin to the robots' process")?;
+    let from_child = child.stdout.take().context("no stdout from the robots' process")?;
+
+    let result = async {
+        // Every robot attached and sending.
+        let mut fleet = FleetServiceClient::new(channel_with(&uri, &stack.operator()?)?);
+        let deadline = Instant::now() + Duration::from_secs_f64(30.0 + n as f64 * 0.5);
+        loop {
+            let robots = fleet.list_robots(ListRobotsRequest {}).await?.into_inner().robots;
+            let ready = robots.iter().filter(|r| r.connected && r.frames_received > 0).count();
+            if ready >= n {
+                break;
+            }
+            anyhow::ensure!(Instant::now() < deadline, "only {ready} of {n} robots attached in time");
+            tokio::time::sleep(Duration::from_millis(200)).await;
+        }
+        let stop = CancellationToken::new();
+        let counts = Arc::new(MissionCounts::default());
+        for (i, id) in ids.iter().enumerate() {
+            let security = caller(tokens.get(i).map(String::as_str).unwrap_or(""))?;
+            let (uri, id, counts, stop) = (uri.clone(), id.clone(), counts.clone(), stop.clone());
+            tokio::spawn(async move {
+                if let Err(e) = dispatch(uri, security, id.clone(), i, counts, stop).await {
+                    tracing::warn!(robot = %id, "dispatcher stopped: {e:#}");
+                }
+            });
+        }
+        tokio::time::sleep(Duration::from_secs_f64(args.warmup)).await;
+
+        let skipped = |robots: &[vlnav_proto::v1::RobotInfo]| robots.iter().map(|r| r.frames_skipped).sum::<u64>();
+        let skipped0 = skipped(&fleet.list_robots(ListRobotsRequest {}).await?.into_inner().robots);
+        let started0 = counts.started.load(Ordering::Relaxed);
+        let refused0 = counts.refused.load(Ordering::Relaxed);
+        let (succeeded0, failed0) = (counts.succeeded.load(Ordering::Relaxed), counts.failed.load(Ordering::Relaxed));
+        let me = std::process::id();
+        let (cpu0, _) = proc_usage(me)?;
+        let t0 = Instant::now();
+        to_child.write_all(b"start\n").await?;
+        let flooding = if args.flood {
+            let stop = stop.child_token();
+            let task = tokio::spawn(flood(uri.clone(), caller(&flood_token)?, ids[0].clone(), stop.clone()));
+            Some((stop, task))
+        } else {
+            None
+        };
+        tokio::time::sleep(Duration::from_secs_f64(args.seconds)).await;
+        to_child.write_all(b"stop\n").await?;
+        let seconds = t0.elapsed().as_secs_f64();
+        let (cpu1, rss) = proc_usage(me)?;
+        let skipped1 = skipped(&fleet.list_robots(ListRobotsRequest {}).await?.into_inner().robots);
+        let flood = match flooding {
+            Some((stop, task)) => {
+                stop.cancel();
+                Some(task.await?)
+            }
+            None => None,
+        };
+        let mut line = String::new();
+        tokio::io::BufReader::new(from_child).read_line(&mut line).await?;
+        let robots: RobotsSummary = serde_json::from_str(line.trim())
+            .with_context(|| format!("the robots' process reported {line:?} (its errors are above)"))?;
+        stop.cancel();
+        Ok(FleetReport {
+            robots: n,
+            seconds,
+            perception: args.perception.as_str().into(),
+            width: args.width,
+            height: args.height,
+            frame_rate: args.frame_rate,
+            achieved_frame_rate: robots.frames_sent as f64 / (n as f64 * robots.seconds.max(1e-9)),
+            frames_sent: robots.frames_sent,
+            cycles: robots.cycles,
+            idle_cycles: robots.idle_cycles,
+            cycle_p50_ms: robots.cycle_p50_ms,
+            cycle_p99_ms: robots.cycle_p99_ms,
+            cycle_max_ms: robots.cycle_max_ms,
+            worst_robot_p99_ms: robots.worst_robot_p99_ms,
+            late_frames: robots.late,
+            dropped_frames: robots.dropped_at_edge + robots.unanswered,
+            dropped_at_edge: robots.dropped_at_edge,
+            skipped_by_gateway: skipped1.saturating_sub(skipped0),
+            missions_started: counts.started.load(Ordering::Relaxed) - started0,
+            missions_succeeded: counts.succeeded.load(Ordering::Relaxed) - succeeded0,
+            missions_failed: counts.failed.load(Ordering::Relaxed) - failed0,
+            submissions_refused: counts.refused.load(Ordering::Relaxed) - refused0,
+            stack_cpu_percent: (cpu1 - cpu0) / seconds * 100.0,
+            stack_rss_mib: rss,
+            robots_cpu_percent: robots.cpu_percent,
+            robots_rss_mib: robots.rss_mib,
+            flood,
+        })
+    }
+    .await;
+    drop(to_child);
+    let _ = tokio::time::timeout(Duration::from_secs(10), child.wait()).await;
+    let _ = child.kill().await;
+    stack.shutdown().await?;
+    result
+}
+
+/// `vlnav bench fleet`: one run, or one per count of `--sweep`.
+pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::Result<Vec<FleetReport>> {
+    let counts = if args.sweep.is_empty() { vec![args.robots] } else { args.sweep.clone() };
+    let mut reports = Vec::new();
+    for n in counts {
+        let report = fleet_run(args, n).await?;
+        if args.json {
+            writeln!(out, "{}", serde_json::to_string(&report)?)?;
+        } else {
+            writeln!(out, "{report}\n")?;
+        }
+        out.flush()?;
+        reports.push(report);
+    }
+    Ok(reports)
+}
+
+/// `vlnav bench plot`: p50 (dashed) and p99 (solid) cycle latency against
+/// the number of robots, log–log, one colour per series, the goal as a line.
+pub fn plot(args: &PlotArgs) -> anyhow::Result<()> {
+    let mut series = Vec::new();
+    for path in &args.series {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+        let mut runs: Vec<FleetReport> = text
+            .lines()
+            .filter(|l| !l.trim().is_empty())
+            .map(|l| {
+                serde_json::from_str(l).with_context(|| format!("{}: not a bench fleet --json line", path.display()))
+            })
+            .collect::<anyhow::Result<_>>()?;
+        anyhow::ensure!(!runs.is_empty(), "{} holds no runs", path.display());
+        runs.sort_by_key(|r| r.robots);
+        series.push(runs);
+    }
+    let svg = plot_svg(&series, args.goal_ms);
+    std::fs::write(&args.out, svg).with_context(|| format!("cannot write {}", args.out.display()))?;
+    Ok(())
+}
+
+fn series_label(runs: &[FleetReport]) -> String {
+    let r = &runs[0];
+    format!(
+        "{} perception, {}x{}{}",
+        r.perception,
+        r.width,
+        r.height,
+        if r.flood.is_some() { ", SubmitMission flood" } else { "" }
+    )
+}
+
+fn plot_svg(series: &[Vec<FleetReport>], goal_ms: f64) -> String {
+    use std::fmt::Write;
+    let (w, h, left, right, top, bottom) = (720.0, 440.0, 70.0, 20.0, 30.0, 110.0);
+    let (pw, ph) = (w - left - right, h - top - bottom);
+    let all = series.iter().flatten();
+    let max_n = all.clone().map(|r| r.robots).max().unwrap_or(1).max(2) as f64;
+    let max_ms = all.clone().map(|r| r.cycle_p99_ms).fold(goal_ms, f64::max) * 1.5;
+    let min_ms = all.map(|r| r.cycle_p50_ms).filter(|v| *v > 0.0).fold(goal_ms, f64::min) / 1.5;
+    let x = |n: f64| left + pw * n.max(1.0).log10() / max_n.log10();
+    let y = |ms: f64| top + ph * (1.0 - (ms.max(min_ms).log10() - min_ms.log10()) / (max_ms.log10() - min_ms.log10()));
+    let colours = ["#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e"];
+    let mut s = String::new();
+    let _ = write!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" font-family="sans-serif" font-size="12"><rect width="100%" height="100%" fill="white"/>"#
+    );
+    let _ = write!(
+        s,
+        r#"<text x="{}" y="18" text-anchor="middle" font-size="14">Control cycle (frame in → command out) against robots on one gateway</text>"#,
+        w / 2.0
+    );
+    // Axes, ticks, grid.
+    let _ = write!(s, r#"<path d="M{left},{top} V{} H{}" stroke="black" fill="none"/>"#, top + ph, left + pw);
+    for n in [1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0] {
+        if n > max_n * 1.01 {
+            break;
+        }
+        let _ = write!(
+            s,
+            r##"<path d="M{0},{1} V{2}" stroke="#ddd"/><text x="{0}" y="{3}" text-anchor="middle">{4}</text>"##,
+            x(n),
+            top,
+            top + ph,
+            top + ph + 16.0,
+            n
+        );
+    }
+    let mut tick = 10f64.powf(min_ms.log10().floor());
+    while tick <= max_ms {
+        for m in [1.0, 2.0, 5.0] {
+            let v = tick * m;
+            if v >= min_ms && v <= max_ms {
+                let _ = write!(
+                    s,
+                    r##"<path d="M{left},{0} H{1}" stroke="#ddd"/><text x="{2}" y="{3}" text-anchor="end">{4}</text>"##,
+                    y(v),
+                    left + pw,
+                    left - 6.0,
+                    y(v) + 4.0,
+                    v
+                );
+            }
+        }
+        tick *= 10.0;
+    }
+    let _ = write!(
+        s,
+        r#"<text x="{}" y="{}" text-anchor="middle">robots (10 Hz each)</text><text transform="translate(18,{}) rotate(-90)" text-anchor="middle">milliseconds</text>"#,
+        left + pw / 2.0,
+        top + ph + 34.0,
+        top + ph / 2.0
+    );
+    let _ = write!(
+        s,
+        r##"<path d="M{left},{0} H{1}" stroke="#888" stroke-dasharray="2,3"/><text x="{2}" y="{3}" text-anchor="end" fill="#666">goal: p99 ≤ {goal_ms} ms</text>"##,
+        y(goal_ms),
+        left + pw,
+        left + pw - 4.0,
+        y(goal_ms) - 4.0
+    );
+    for (i, runs) in series.iter().enumerate() {
+        let c = colours[i % colours.len()];
+        let path = |f: &dyn Fn(&FleetReport) -> f64| {
+            runs.iter()
+                .enumerate()
+                .map(|(k, r)| format!("{}{:.1},{:.1}", if k == 0 { "M" } else { " L" }, x(r.robots as f64), y(f(r))))
+                .collect::<String>()
+        };
+        let _ = write!(s, r#"<path d="{}" stroke="{c}" stroke-width="2" fill="none"/>"#, path(&|r| r.cycle_p99_ms));
+        let _ = write!(
+            s,
+            r#"<path d="{}" stroke="{c}" stroke-width="1.5" stroke-dasharray="6,4" fill="none"/>"#,
+            path(&|r| r.cycle_p50_ms)
+        );
+        for r in runs {
+            let _ =
+                write!(s, r#"<circle cx="{:.1}" cy="{:.1}" r="3" fill="{c}"/>"#, x(r.robots as f64), y(r.cycle_p99_ms));
+        }
+        let ly = top + ph + 56.0 + i as f64 * 16.0;
+        let _ = write!(
+            s,
+            r#"<path d="M{left},{0} h24" stroke="{c}" stroke-width="2"/><text x="{1}" y="{2}">{3}: p99 solid, p50 dashed</text>"#,
+            ly - 4.0,
+            left + 30.0,
+            ly,
+            series_label(runs)
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(base: Instant, ms: u64) -> Instant {
+        base + Duration::from_millis(ms)
+    }
+
+    #[test]
+    fn cycles_pair_each_command_with_its_frame_and_count_what_was_passed_over() {
+        let t = Instant::now();
+        let mut s = CycleStats::default();
+        s.on(LinkEvent::Frame { stamp: 0.1, queued: true, at: at(t, 0) }, true, 0.1);
+        s.on(LinkEvent::Command { stamp: 0.1, idle: false, at: at(t, 12) }, true, 0.1);
+        // Frame 0.2 is passed over by the gateway; 0.3 is answered late.
+        s.on(LinkEvent::Frame { stamp: 0.2, queued: true, at: at(t, 100) }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 0.3, queued: true, at: at(t, 200) }, true, 0.1);
+        s.on(LinkEvent::Command { stamp: 0.3, idle: false, at: at(t, 350) }, true, 0.1);
+        // The robot's queue was full; an idle answer is not a mission cycle.
+        s.on(LinkEvent::Frame { stamp: 0.4, queued: false, at: at(t, 300) }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 0.5, queued: true, at: at(t, 400) }, true, 0.1);
+        s.on(LinkEvent::Command { stamp: 0.5, idle: true, at: at(t, 401) }, true, 0.1);
+        // A command for a frame nobody recorded changes nothing.
+        s.on(LinkEvent::Command { stamp: 0.45, idle: false, at: at(t, 402) }, true, 0.1);
+        assert_eq!(s.sent, 5);
+        assert_eq!((s.dropped_at_edge, s.unanswered, s.idle, s.late), (1, 1, 1, 1));
+        assert_eq!(s.cycles_ms.len(), 2);
+        assert!((s.cycles_ms[0] - 12.0).abs() < 1.0 && (s.cycles_ms[1] - 150.0).abs() < 1.0, "{:?}", s.cycles_ms);
+    }
+
+    #[test]
+    fn nothing_is_counted_outside_the_measurement() {
+        let t = Instant::now();
+        let mut s = CycleStats::default();
+        s.on(LinkEvent::Frame { stamp: 1.0, queued: true, at: t }, false, 0.1);
+        s.on(LinkEvent::Frame { stamp: 1.1, queued: true, at: t }, false, 0.1);
+        s.on(LinkEvent::Command { stamp: 1.1, idle: false, at: t }, false, 0.1);
+        assert_eq!((s.sent, s.unanswered, s.cycles_ms.len()), (0, 0, 0));
+        assert!(s.pending.is_empty());
+    }
+
+    #[test]
+    fn a_frame_sent_before_the_measurement_is_not_counted_when_answered_during_it() {
+        let t = Instant::now();
+        let mut s = CycleStats::default();
+        s.on(LinkEvent::Frame { stamp: 1.0, queued: true, at: t }, false, 0.1);
+        s.on(LinkEvent::Frame { stamp: 1.1, queued: true, at: t }, true, 0.1);
+        s.on(LinkEvent::Command { stamp: 1.0, idle: false, at: t }, true, 0.1);
+        s.on(LinkEvent::Command { stamp: 1.1, idle: false, at: t }, true, 0.1);
+        assert_eq!((s.sent, s.cycles_ms.len()), (1, 1));
+    }
+
+    #[test]
+    fn quantiles_are_the_nearest_rank() {
+        let v: Vec<f64> = (1..=100).map(f64::from).collect();
+        assert_eq!(quantile(&v, 0.5), 50.0);
+        assert_eq!(quantile(&v, 0.99), 99.0);
+        assert_eq!(quantile(&v, 1.0), 100.0);
+        assert_eq!(quantile(&[], 0.5), 0.0);
+    }
+
+    #[test]
+    fn this_process_reports_cpu_and_memory() {
+        let (cpu, rss) = proc_usage(std::process::id()).unwrap();
+        assert!(cpu >= 0.0 && rss > 1.0, "cpu {cpu} s, rss {rss} MiB");
+    }
+
+    #[test]
+    fn the_plot_draws_every_series_and_the_goal() {
+        let run = |n, p50, p99, perception: &str| FleetReport {
+            robots: n,
+            cycle_p50_ms: p50,
+            cycle_p99_ms: p99,
+            perception: perception.into(),
+            width: 640,
+            height: 480,
+            ..Default::default()
+        };
+        let a = vec![run(1, 5.0, 9.0, "oracle"), run(10, 6.0, 20.0, "oracle"), run(100, 80.0, 900.0, "oracle")];
+        let b = vec![run(1, 8.0, 15.0, "realistic"), run(10, 12.0, 60.0, "realistic")];
+        let svg = plot_svg(&[a, b], 50.0);
+        assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+        assert!(svg.contains("oracle perception, 640x480") && svg.contains("realistic perception, 640x480"));
+        assert!(svg.contains("goal: p99 ≤ 50 ms"));
+        assert_eq!(svg.matches("<circle").count(), 5);
+        assert!(!svg.contains("NaN") && !svg.contains("inf"));
+    }
+}
