@@ -228,6 +228,7 @@ struct SimRobot {
     seq: u64,
     robot_id: String,
     max_time: Option<f64>,
+    depth_codec: crate::DepthCodec,
 }
 
 impl SimRobot {
@@ -244,6 +245,7 @@ impl SimRobot {
             camera: self.camera,
             odom: odom.pose,
             odom_twist: wheel,
+            depth_codec: self.depth_codec,
         };
         let frame = pb::SensorFrame {
             frame: Some(convert::sim_frame(meta, &self.frame)),
@@ -292,6 +294,7 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
         seq: 0,
         robot_id: opts.robot_id.clone(),
         max_time: opts.max_sim_time_s,
+        depth_codec: opts.depth_codec,
     };
     let mut gov = Governor::new(desc.limits, opts.deadman_timeout_s);
     let mut backoff =

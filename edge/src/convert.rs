@@ -5,6 +5,7 @@ use vlnav_proto::v1 as pb;
 use vlnav_sim::camera::CameraConfig;
 use vlnav_sim::{Frame, Pose2, Truth, Twist};
 
+use crate::DepthCodec;
 use crate::safety::Limits;
 
 /// The robot description sent in `EdgeHello`.
@@ -65,6 +66,16 @@ pub struct FrameMeta<'a> {
     pub camera: pb::CameraInfo,
     pub odom: Pose2,
     pub odom_twist: Twist,
+    pub depth_codec: DepthCodec,
+}
+
+/// A depth image of `width`×`height` millimetres (0: no return) as `codec` sends it.
+pub fn depth_image(width: u32, height: u32, depth_mm: &[u16], codec: DepthCodec) -> pb::DepthImage {
+    let (data_mm, encoding) = match codec {
+        DepthCodec::Raw => (u16_le(depth_mm), pb::DepthEncoding::RawU16),
+        DepthCodec::Rvl => (vlnav_geometry::rvl::encode(depth_mm), pb::DepthEncoding::Rvl),
+    };
+    pb::DepthImage { width, height, data_mm: data_mm.into(), encoding: encoding as i32 }
 }
 
 /// A rendered simulator frame as an `RgbdFrame` (with its label image).
@@ -80,7 +91,7 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
             encoding: pb::ImageEncoding::Rgb8 as i32,
             data: f.rgb.clone().into(),
         }),
-        depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: u16_le(&f.depth_mm).into() }),
+        depth: Some(depth_image(f.width, f.height, &f.depth_mm, meta.depth_codec)),
         odom: Some(pose_to_proto(&meta.odom)),
         odom_twist: Some(twist(&meta.odom_twist)),
         labels: Some(pb::LabelImage {
@@ -139,11 +150,17 @@ mod tests {
             camera: sim_camera_info(sim.camera()),
             odom: Pose2::default(),
             odom_twist: Twist::ZERO,
+            depth_codec: DepthCodec::Raw,
         };
-        let m = sim_frame(meta, &f);
+        let m = sim_frame(meta.clone(), &f);
         let rgb = m.rgb.unwrap();
         assert_eq!((rgb.width, rgb.height, rgb.data.len()), (64, 48, 64 * 48 * 3));
         assert_eq!(m.depth.unwrap().data_mm.len(), 64 * 48 * 2);
+        // RVL carries the same millimetres in fewer bytes.
+        let rvl = sim_frame(FrameMeta { depth_codec: DepthCodec::Rvl, ..meta }, &f).depth.unwrap();
+        assert_eq!(rvl.encoding, pb::DepthEncoding::Rvl as i32);
+        assert!(rvl.data_mm.len() < 64 * 48 * 2);
+        assert_eq!(vlnav_geometry::rvl::decode(&rvl.data_mm, 64 * 48).unwrap(), f.depth_mm);
         let labels = m.labels.unwrap();
         assert_eq!(labels.instance_ids.len(), 64 * 48 * 2);
         assert!(labels.instances.iter().any(|i| i.semantic == "floor" && i.class_id == -1));

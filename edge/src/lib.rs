@@ -45,6 +45,18 @@ impl DriverKind {
     }
 }
 
+/// How depth travels to the gateway (docs/architecture.md, "Frames").
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DepthCodec {
+    /// Little-endian u16 millimetres as the camera gives them.
+    #[default]
+    Raw,
+    /// Lossless RVL: a third to a half of the bytes, for about 1 ms a frame at
+    /// each end (`cargo bench -p vlnav-sim --bench depth_codec`). For an
+    /// uplink whose bandwidth is the limit (docs/architecture.md, "Frames").
+    Rvl,
+}
+
 /// Settings of one edge agent (flags or `VLNAV_EDGE_*` environment variables).
 #[derive(clap::Args, Clone, Debug)]
 pub struct EdgeOptions {
@@ -97,6 +109,10 @@ pub struct EdgeOptions {
     /// sim: end the run once simulation time reaches this many seconds.
     #[arg(long, env = "VLNAV_EDGE_MAX_SIM_TIME_S")]
     pub max_sim_time_s: Option<f64>,
+    /// How depth is sent: `raw`, or `rvl` (lossless, a third to a half of the
+    /// bytes, for a link whose bandwidth is the limit).
+    #[arg(long, env = "VLNAV_EDGE_DEPTH_CODEC", value_enum, default_value_t = DepthCodec::Raw)]
+    pub depth_codec: DepthCodec,
     /// Largest gRPC message sent or accepted, bytes.
     #[arg(long, env = "VLNAV_EDGE_MAX_MESSAGE_BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_message_bytes: usize,
@@ -154,6 +170,7 @@ impl Default for EdgeOptions {
             reconnect_max_s: 5.0,
             estop: false,
             max_sim_time_s: None,
+            depth_codec: DepthCodec::Raw,
             max_message_bytes: 16 * 1024 * 1024,
             ros_node: "vlnav_edge".into(),
             cmd_vel_topic: "/cmd_vel".into(),

@@ -425,7 +425,7 @@ async fn ros_session(
                     stamp: f.stamp,
                     camera: Some(camera_info(opts, f.width, f.height, f.intrinsics)),
                     rgb: Some(pb::Image { width: f.width, height: f.height, encoding: pb::ImageEncoding::Rgb8 as i32, data: f.rgb.into() }),
-                    depth: Some(pb::DepthImage { width: f.width, height: f.height, data_mm: f.depth_mm_le.into() }),
+                    depth: Some(depth_le(f.width, f.height, f.depth_mm_le, opts.depth_codec)),
                     odom: Some(pose_to_proto(&odom_pose)),
                     odom_twist: Some(convert::twist(&odom_twist)),
                     labels: None,
@@ -467,6 +467,19 @@ async fn ros_session(
                     });
                 }
             }
+        }
+    }
+}
+
+/// The camera's little-endian millimetres as `codec` sends them.
+fn depth_le(width: u32, height: u32, mm_le: Vec<u8>, codec: crate::DepthCodec) -> pb::DepthImage {
+    match codec {
+        crate::DepthCodec::Raw => {
+            pb::DepthImage { width, height, data_mm: mm_le.into(), encoding: pb::DepthEncoding::RawU16 as i32 }
+        }
+        crate::DepthCodec::Rvl => {
+            let mm: Vec<u16> = mm_le.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+            convert::depth_image(width, height, &mm, codec)
         }
     }
 }

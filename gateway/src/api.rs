@@ -163,7 +163,13 @@ impl Gateway {
                 data: c.to_vec().into(),
             })
             .collect();
-        let resp = self.pipeline().ingress.clone().transcribe(tokio_stream::iter(chunks)).await?;
+        let resp = self
+            .pipeline()
+            .ingress
+            .clone()
+            .transcribe(tokio_stream::iter(chunks))
+            .await
+            .map_err(stage_unreachable("ingress"))?;
         Ok(resp.into_inner())
     }
 
@@ -275,7 +281,8 @@ impl Gateway {
             .planner
             .clone()
             .plan(PlanRequest { instruction: text.clone(), backend: String::new() })
-            .await?
+            .await
+            .map_err(stage_unreachable("planner"))?
             .into_inner();
         let mut response = SubmitMissionResponse {
             mission_id: mission_id.to_string(),
@@ -582,14 +589,37 @@ impl FleetService for Gateway {
                     }
                 };
                 let sent = match msg.kind {
-                    Some(edge_message::Kind::Frame(frame)) => {
-                        let checked = match &frame.frame {
+                    Some(edge_message::Kind::Frame(mut frame)) => {
+                        // Decoding RVL depth takes a millisecond or more: off the async workers.
+                        let mut decoded = Ok(());
+                        if let Some(mut f) = frame.frame.take() {
+                            if frames::is_encoded(&f) {
+                                let job = tokio::task::spawn_blocking(move || {
+                                    let r = frames::decode_depth(&mut f);
+                                    (f, r)
+                                });
+                                match job.await {
+                                    Ok((back, r)) => {
+                                        f = back;
+                                        decoded = r;
+                                    }
+                                    Err(e) => {
+                                        let status =
+                                            Status::internal(format!("robot '{robot}': the depth decoder failed: {e}"));
+                                        let _ = tx.send(Err(status)).await;
+                                        break format!("depth decoder failed: {e}");
+                                    }
+                                }
+                            }
+                            frame.frame = Some(f);
+                        }
+                        let checked = match frame.frame.as_mut() {
                             None => Err(FrameError::Missing { seq: 0, field: "frame" }),
                             Some(f) if !f.robot_id.is_empty() && f.robot_id != robot => Err(FrameError::Invalid {
                                 seq: f.seq,
                                 what: format!("robot_id '{}' differs from the attached robot", f.robot_id),
                             }),
-                            Some(f) => frames::check_frame(f, last_stamp).map(|_| f.stamp),
+                            Some(f) => decoded.and_then(|()| frames::check_frame(f, last_stamp)).map(|()| f.stamp),
                         };
                         match checked {
                             Ok(stamp) => {
@@ -634,5 +664,32 @@ impl FleetService for Gateway {
         let mut robots = self.fleet.list();
         robots.retain(|r| caller.may_act_on(&r.robot_id));
         Ok(Response::new(ListRobotsResponse { robots }))
+    }
+}
+
+/// A stage call's error as the gateway's caller gets it. When the stage could
+/// not be reached or did not answer, the transport's words ("tcp connect
+/// error") do not say which service is down: the message names it, as the
+/// executor's stage failures do. The stage's own answers pass unchanged.
+fn stage_unreachable(stage: &'static str) -> impl FnOnce(Status) -> Status {
+    move |s| match s.code() {
+        tonic::Code::Unavailable | tonic::Code::DeadlineExceeded | tonic::Code::Cancelled | tonic::Code::Unknown => {
+            Status::new(s.code(), format!("the {stage} service failed: {}", s.message()))
+        }
+        _ => s,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_unreachable_stage_is_named_and_its_own_answers_pass_unchanged() {
+        let down = stage_unreachable("planner")(Status::unavailable("tcp connect error"));
+        assert_eq!(down.code(), tonic::Code::Unavailable);
+        assert_eq!(down.message(), "the planner service failed: tcp connect error");
+        let refused = stage_unreachable("planner")(Status::invalid_argument("the instruction is empty"));
+        assert_eq!(refused.message(), "the instruction is empty");
     }
 }

@@ -1,6 +1,6 @@
 //! Checks of what an edge agent sends, before anything acts on it.
 
-use vlnav_proto::v1::{ImageEncoding, Pose2D, RgbdFrame};
+use vlnav_proto::v1::{DepthEncoding, ImageEncoding, Pose2D, RgbdFrame};
 
 /// Largest accepted image side, pixels.
 pub const MAX_SIDE: u32 = 4096;
@@ -28,6 +28,40 @@ pub fn check_pose(seq: u64, pose: &Pose2D) -> Result<(), FrameError> {
     finite(seq, "odom.x", pose.x)?;
     finite(seq, "odom.y", pose.y)?;
     finite(seq, "odom.theta", pose.theta)
+}
+
+/// Whether the frame's depth needs [`decode_depth`] (anything but raw).
+pub fn is_encoded(frame: &RgbdFrame) -> bool {
+    frame.depth.as_ref().is_some_and(|d| d.encoding != DepthEncoding::RawU16 as i32)
+}
+
+/// Decodes RVL depth (the robot link's codec, docs/architecture.md "Frames")
+/// in place, so that everything past the gateway reads raw u16 millimetres.
+/// The declared size bounds what is decoded, whatever the stream says.
+pub fn decode_depth(frame: &mut RgbdFrame) -> Result<(), FrameError> {
+    let seq = frame.seq;
+    let Some(depth) = frame.depth.as_mut() else { return Ok(()) };
+    match DepthEncoding::try_from(depth.encoding) {
+        Ok(DepthEncoding::RawU16) => Ok(()),
+        Ok(DepthEncoding::Rvl) => {
+            let (w, h) = (depth.width, depth.height);
+            if w == 0 || h == 0 || w > MAX_SIDE || h > MAX_SIDE {
+                return Err(FrameError::Invalid {
+                    seq,
+                    what: format!("depth size {w}x{h} is outside 1..={MAX_SIDE} pixels per side"),
+                });
+            }
+            let raw = vlnav_geometry::rvl::decode_le_bytes(&depth.data_mm, w as usize * h as usize)
+                .map_err(|e| FrameError::Invalid { seq, what: format!("depth (RVL): {e}") })?;
+            depth.data_mm = raw.into();
+            depth.encoding = DepthEncoding::RawU16 as i32;
+            Ok(())
+        }
+        Err(_) => Err(FrameError::Invalid {
+            seq,
+            what: format!("depth encoding {} is unknown (0: raw u16 millimetres, 1: RVL)", depth.encoding),
+        }),
+    }
 }
 
 /// Validates a sensor frame: camera model, image sizes against the camera,
@@ -66,8 +100,18 @@ pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(),
     }
     finite(seq, "camera.intrinsics.cx", k.cx)?;
     finite(seq, "camera.intrinsics.cy", k.cy)?;
+    // The rest of the camera model (mount, depth range) as the executor and every stage read
+    // it: a frame accepted here has a camera they accept.
+    vlnav_geometry::convert::camera_from_proto(Some(cam), "camera", vlnav_geometry::convert::DepthDefaults::UNSET)
+        .map_err(|e| FrameError::Invalid { seq, what: e.to_string() })?;
     let pixels = w as usize * h as usize;
     let depth = frame.depth.as_ref().ok_or(FrameError::Missing { seq, field: "depth" })?;
+    if depth.encoding != DepthEncoding::RawU16 as i32 {
+        return Err(FrameError::Invalid {
+            seq,
+            what: "depth must be decoded (decode_depth) before it is checked".into(),
+        });
+    }
     if depth.width != w || depth.height != h || depth.data_mm.len() != pixels * 2 {
         return Err(FrameError::Invalid {
             seq,
@@ -150,7 +194,7 @@ pub(crate) mod tests {
                 encoding: ImageEncoding::Rgb8 as i32,
                 data: vec![0; (w * h * 3) as usize].into(),
             }),
-            depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize].into() }),
+            depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize].into(), encoding: 0 }),
             odom: Some(Pose2D { x: 0.0, y: 0.0, theta: 0.0 }),
             odom_twist: None,
             labels: None,
@@ -160,6 +204,45 @@ pub(crate) mod tests {
     #[test]
     fn a_well_formed_frame_passes() {
         assert_eq!(check_frame(&frame(64, 48), Some(1.0)), Ok(()));
+    }
+
+    #[test]
+    fn rvl_depth_is_decoded_in_place_and_then_checked_like_raw_depth() {
+        let mut f = frame(8, 6);
+        let mm: Vec<u16> = (0..48).map(|i| if i % 7 == 0 { 0 } else { 1000 + i }).collect();
+        let depth = f.depth.as_mut().unwrap();
+        depth.data_mm = vlnav_geometry::rvl::encode(&mm).into();
+        depth.encoding = DepthEncoding::Rvl as i32;
+        // Still encoded: refused by the check, with what to do.
+        assert!(check_frame(&f, None).unwrap_err().to_string().contains("decode_depth"));
+        decode_depth(&mut f).unwrap();
+        let depth = f.depth.as_ref().unwrap();
+        assert_eq!(depth.encoding, DepthEncoding::RawU16 as i32);
+        let back: Vec<u16> = depth.data_mm.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
+        assert_eq!(back, mm);
+        assert_eq!(check_frame(&f, None), Ok(()));
+        // Raw depth is left alone.
+        let mut raw = frame(8, 6);
+        decode_depth(&mut raw).unwrap();
+        assert_eq!(raw, frame(8, 6));
+    }
+
+    #[test]
+    fn broken_or_unknown_depth_encodings_are_named() {
+        let mut f = frame(8, 6);
+        let depth = f.depth.as_mut().unwrap();
+        depth.data_mm = vec![0xFF; 9].into();
+        depth.encoding = DepthEncoding::Rvl as i32;
+        let e = decode_depth(&mut f).unwrap_err().to_string();
+        assert!(e.starts_with("frame 7: depth (RVL): the RVL stream"), "{e}");
+        f.depth.as_mut().unwrap().encoding = 9;
+        let e = decode_depth(&mut f).unwrap_err().to_string();
+        assert!(e.contains("depth encoding 9 is unknown"), "{e}");
+        // A declared size past the limit is refused before anything is decoded.
+        let mut f = frame(8, 6);
+        let depth = f.depth.as_mut().unwrap();
+        (depth.width, depth.height, depth.encoding) = (100_000, 100_000, DepthEncoding::Rvl as i32);
+        assert!(decode_depth(&mut f).unwrap_err().to_string().contains("outside 1..=4096"));
     }
 
     #[test]
@@ -199,5 +282,14 @@ pub(crate) mod tests {
         let mut f = frame(8, 6);
         f.camera.as_mut().unwrap().intrinsics.as_mut().unwrap().fx = 0.0;
         assert!(check_frame(&f, None).unwrap_err().to_string().contains("must be positive"));
+        // A camera the stages would refuse (found by fuzzing: the executor then had no camera).
+        let mut f = frame(8, 6);
+        f.camera.as_mut().unwrap().depth_min_m = 20.0;
+        let e = check_frame(&f, None).unwrap_err().to_string();
+        assert!(e.contains("invalid camera.depth_max_m: must exceed depth_min_m"), "{e}");
+        let mut f = frame(8, 6);
+        f.camera.as_mut().unwrap().mount =
+            Some(vlnav_proto::v1::CameraMount { pitch: f64::INFINITY, ..Default::default() });
+        assert!(check_frame(&f, None).unwrap_err().to_string().contains("camera.mount.pitch"));
     }
 }

@@ -1021,7 +1021,7 @@ mod tests {
             frame: Some(pb::RgbdFrame {
                 seq,
                 stamp: seq as f64 * 0.1,
-                depth: Some(pb::DepthImage { width: 640, height: 480, data_mm }),
+                depth: Some(pb::DepthImage { width: 640, height: 480, data_mm, encoding: 0 }),
                 ..Default::default()
             }),
             truth: None,

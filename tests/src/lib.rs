@@ -1,5 +1,14 @@
 //! Harness of the end-to-end tests in `tests/tests/`: a whole vlnav stack on
-//! ephemeral loopback ports, and the real command-line clients users run.
+//! ephemeral loopback ports, and the real command-line clients users run;
+//! for the chaos tier, the deployment's binaries as separate processes
+//! ([`procs`]), a breakable TCP link ([`proxy`]), a simulated robot driven by
+//! the edge agent in this process ([`robot`]) and the measure of how fast it
+//! is stopped ([`stops`]).
+
+pub mod procs;
+pub mod proxy;
+pub mod robot;
+pub mod stops;
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

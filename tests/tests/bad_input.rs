@@ -26,7 +26,12 @@ fn frame(robot: &str, seq: u64, w: u32, h: u32, theta: f64) -> EdgeMessage {
                     depth_min_m: 0.3,
                     depth_max_m: 10.0,
                 }),
-                depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize].into() }),
+                depth: Some(DepthImage {
+                    width: w,
+                    height: h,
+                    data_mm: vec![0; (w * h * 2) as usize].into(),
+                    encoding: 0,
+                }),
                 odom: Some(Pose2D { x: 0.0, y: 0.0, theta }),
                 ..Default::default()
             }),

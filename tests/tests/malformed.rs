@@ -6,96 +6,15 @@
 //! messages (huge sizes, NaNs, unknown enums) that the services must refuse
 //! or answer.
 
+mod common;
+
 use std::time::Duration;
 
-use bytes::{Buf, BufMut};
+use common::RawCodec;
 use prost::Message;
-use rand::{Rng, SeedableRng};
-use tonic::codec::{Codec, DecodeBuf, Decoder, EncodeBuf, Encoder};
+use rand::SeedableRng;
 use vlnav_e2e::TestStack;
-
-/// Passes bytes through as the message, both ways.
-#[derive(Default)]
-struct RawCodec;
-
-struct RawEncoder;
-struct RawDecoder;
-
-impl Encoder for RawEncoder {
-    type Item = Vec<u8>;
-    type Error = tonic::Status;
-    fn encode(&mut self, item: Vec<u8>, dst: &mut EncodeBuf<'_>) -> Result<(), tonic::Status> {
-        dst.put_slice(&item);
-        Ok(())
-    }
-}
-
-impl Decoder for RawDecoder {
-    type Item = Vec<u8>;
-    type Error = tonic::Status;
-    fn decode(&mut self, src: &mut DecodeBuf<'_>) -> Result<Option<Vec<u8>>, tonic::Status> {
-        let mut out = vec![0; src.remaining()];
-        src.copy_to_slice(&mut out);
-        Ok(Some(out))
-    }
-}
-
-impl Codec for RawCodec {
-    type Encode = Vec<u8>;
-    type Decode = Vec<u8>;
-    type Encoder = RawEncoder;
-    type Decoder = RawDecoder;
-    fn encoder(&mut self) -> RawEncoder {
-        RawEncoder
-    }
-    fn decoder(&mut self) -> RawDecoder {
-        RawDecoder
-    }
-}
-
-/// A protobuf-looking payload: fields with random numbers and wire types,
-/// lengths that lie, varints that never end.
-fn hostile(rng: &mut rand_chacha::ChaCha8Rng) -> Vec<u8> {
-    let mut out = Vec::new();
-    match rng.random_range(0..4) {
-        0 => out.extend((0..rng.random_range(0..64)).map(|_| rng.random::<u8>())),
-        1 => {
-            for _ in 0..rng.random_range(1..12) {
-                let field: u32 = rng.random_range(1..20);
-                let wire: u32 = rng.random_range(0..6);
-                prost::encoding::encode_varint(((field << 3) | wire) as u64, &mut out);
-                match wire {
-                    0 => prost::encoding::encode_varint(rng.random(), &mut out),
-                    1 => out.extend(rng.random::<u64>().to_le_bytes()),
-                    2 => {
-                        let len: usize = rng.random_range(0..40);
-                        // Sometimes the length claims more than follows.
-                        let claimed =
-                            if rng.random_bool(0.2) { len as u64 + rng.random_range(1..1 << 30) } else { len as u64 };
-                        prost::encoding::encode_varint(claimed, &mut out);
-                        out.extend((0..len).map(|_| rng.random::<u8>()));
-                    }
-                    5 => out.extend(rng.random::<u32>().to_le_bytes()),
-                    _ => {}
-                }
-            }
-        }
-        2 => out.extend(std::iter::repeat_n(0xFF, rng.random_range(1..16))),
-        _ => {
-            // A frame-like message: nested messages with huge sizes and NaNs.
-            let mut inner = Vec::new();
-            for field in 1..=9u32 {
-                prost::encoding::encode_varint(((field << 3) | 1) as u64, &mut inner);
-                let v = [f64::NAN, f64::INFINITY, -1.0, 1e300, 0.0][rng.random_range(0..5)];
-                inner.extend(v.to_le_bytes());
-            }
-            prost::encoding::encode_varint(((rng.random_range(1..8u32) << 3) | 2) as u64, &mut out);
-            prost::encoding::encode_varint(inner.len() as u64, &mut out);
-            out.extend(inner);
-        }
-    }
-    out
-}
+use vlnav_fuzzgen::hostile_protobuf as hostile;
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_unary_method_answers_malformed_requests_with_a_status() {
@@ -154,10 +73,7 @@ async fn every_unary_method_answers_malformed_requests_with_a_status() {
                         .or_default() += 1;
                     if let Err(status) = result {
                         assert!(
-                            !matches!(
-                                status.code(),
-                                tonic::Code::Unknown | tonic::Code::Unavailable | tonic::Code::Cancelled
-                            ),
+                            !common::is_crash(status.code()),
                             "{path} failed on {payload:02x?} with {status:?}: a panic or a dropped connection"
                         );
                         assert!(!status.message().is_empty(), "{path}: a status says why: {status:?}");

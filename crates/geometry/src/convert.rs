@@ -202,6 +202,15 @@ pub fn depth_from_proto<'a>(
 ) -> Result<DepthView<'a>, InvalidField> {
     let d =
         depth.ok_or_else(|| InvalidField::new(field, "is required (little-endian u16 millimetres, width × height)"))?;
+    if d.encoding != pb::DepthEncoding::RawU16 as i32 {
+        return Err(InvalidField::new(
+            format!("{field}.encoding"),
+            format!(
+                "is {}; stages take raw u16 depth (only the link from a robot to the gateway carries RVL, and the gateway decodes it)",
+                d.encoding
+            ),
+        ));
+    }
     if d.width != cam.width || d.height != cam.height {
         return Err(InvalidField::new(
             format!("{field}.width/height"),
@@ -241,8 +250,9 @@ pub fn label_ids_from_proto(
             format!("must match the frame's {width}×{height}, got {}×{}", l.width, l.height),
         ));
     }
-    let want = width as usize * height as usize * 2;
-    if l.instance_ids.len() != want {
+    // In u128: a declared size near u32::MAX a side overflows usize.
+    let want = u128::from(width) * u128::from(height) * 2;
+    if l.instance_ids.len() as u128 != want {
         return Err(InvalidField::new(
             format!("{field}.instance_ids"),
             format!("{width}×{height} little-endian u16 ids need {want} bytes, got {}", l.instance_ids.len()),
@@ -315,7 +325,7 @@ mod tests {
     #[test]
     fn depth_must_match_the_camera() {
         let cam = camera_from_proto(Some(&info()), "frame.camera", DEFAULTS).unwrap();
-        let d = pb::DepthImage { width: 4, height: 2, data_mm: encode_depth_mm(&[1.0; 8]).into() };
+        let d = pb::DepthImage { width: 4, height: 2, data_mm: encode_depth_mm(&[1.0; 8]).into(), encoding: 0 };
         assert_eq!(depth_from_proto(Some(&d), &cam, "frame.depth").unwrap().mm(3, 1), 1000);
         assert_eq!(field_of(depth_from_proto(None, &cam, "frame.depth")), "frame.depth");
         let wide = pb::DepthImage { width: 8, height: 1, ..d.clone() };
@@ -359,5 +369,9 @@ mod tests {
         assert_eq!(field_of(label_ids_from_proto(&l, 1, 2, "frame.labels")), "frame.labels.width/height");
         let short = pb::LabelImage { instance_ids: vec![1].into(), ..l };
         assert_eq!(field_of(label_ids_from_proto(&short, 2, 1, "frame.labels")), "frame.labels.instance_ids");
+        // A declared size whose byte count overflows is refused, not a panic.
+        let huge = pb::LabelImage { width: u32::MAX, height: u32::MAX, ..short };
+        let e = label_ids_from_proto(&huge, u32::MAX, u32::MAX, "frame.labels").unwrap_err();
+        assert!(e.reason.contains("36893488130239234050 bytes"), "{e}");
     }
 }

@@ -32,7 +32,9 @@ pub struct DepthSizeError {
 
 impl<'a> DepthView<'a> {
     pub fn new(width: u32, height: u32, data: &'a [u8]) -> Result<Self, DepthSizeError> {
-        let expected = width as usize * height as usize * 2;
+        // A declared size near u32::MAX a side overflows; it matches no buffer.
+        let expected =
+            (width as usize).checked_mul(height as usize).and_then(|p| p.checked_mul(2)).unwrap_or(usize::MAX);
         if data.len() != expected || expected == 0 {
             return Err(DepthSizeError { width, height, expected, actual: data.len() });
         }
@@ -91,6 +93,8 @@ mod tests {
         assert_eq!(err.expected, 12);
         assert!(err.to_string().contains("must hold 12 bytes"));
         assert!(DepthView::new(0, 0, &[]).is_err());
+        // A declared size whose byte count overflows is refused, not a panic.
+        assert!(DepthView::new(u32::MAX, u32::MAX, &[0; 4]).is_err());
     }
 
     #[test]

@@ -20,5 +20,6 @@ pub mod convert;
 pub mod depth;
 pub mod pose;
 pub mod rgb;
+pub mod rvl;
 
 pub use pose::{GoalSpec, Pose2, Twist, wrap_angle};

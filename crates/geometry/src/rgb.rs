@@ -96,6 +96,25 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
                     reason: format!("the data ({} bytes) ends without the end-of-image marker FF D9", data.len()),
                 });
             }
+            // The header's size first (cheap): a few bytes that claim a large picture are
+            // refused before the decoder allocates for it (or fills it with grey).
+            let (hw, hh) = image::ImageReader::with_format(std::io::Cursor::new(data), format)
+                .into_dimensions()
+                .map_err(|e| ImageError::Decode { format: name, reason: e.to_string() })?;
+            if (width != 0 && width != hw) || (height != 0 && height != hh) {
+                return Err(ImageError::SizeMismatch { format: name, width, height, decoded_w: hw, decoded_h: hh });
+            }
+            let least = least_encoded_len(encoding, hw, hh, data);
+            if (data.len() as u64) < least {
+                return Err(ImageError::Decode {
+                    format: name,
+                    reason: format!(
+                        "the data ({} bytes) is too short for the {hw}×{hh} picture its header declares \
+                         (at least {least} bytes)",
+                        data.len()
+                    ),
+                });
+            }
             let mut reader = image::ImageReader::with_format(std::io::Cursor::new(data), format);
             let mut limits = image::Limits::default();
             limits.max_image_width = Some(MAX_SIDE);
@@ -108,6 +127,35 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
             }
             Ok(img.into_rgb8())
         }
+    }
+}
+
+/// The fewest bytes a PNG or JPEG of `width`×`height` can be encoded in:
+/// - PNG: the filtered rows (a filter byte and the packed pixels, bit depth
+///   and channels read from the IHDR chunk, 1 bit a pixel if absent), deflated
+///   at best 1032:1 (deflate's ceiling);
+/// - JPEG: one bit of entropy-coded data per 8×8 luma block at the least
+///   (the shortest Huffman code for its DC coefficient).
+fn least_encoded_len(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> u64 {
+    let (w, h) = (u64::from(width), u64::from(height));
+    match encoding {
+        Encoding::Png => {
+            let bits_per_pixel = match data.get(24..26) {
+                Some(&[depth, colour]) => {
+                    let channels = match colour {
+                        2 => 3,
+                        4 => 2,
+                        6 => 4,
+                        _ => 1,
+                    };
+                    u64::from(depth.max(1)) * channels
+                }
+                _ => 1,
+            };
+            h * (1 + (w * bits_per_pixel).div_ceil(8)) / 1032
+        }
+        Encoding::Jpeg => w.div_ceil(8) * h.div_ceil(8) / 8,
+        Encoding::Rgb8 => 0,
     }
 }
 

@@ -58,7 +58,8 @@ pub enum LabelError {
 
 /// Little-endian u16 pixels, checked against the size.
 pub fn parse_u16_image(field: &'static str, width: u32, height: u32, bytes: &[u8]) -> Result<Vec<u16>, LabelError> {
-    let expected = width as usize * height as usize * 2;
+    // A declared size near u32::MAX a side overflows; it matches no buffer.
+    let expected = (width as usize).checked_mul(height as usize).and_then(|p| p.checked_mul(2)).unwrap_or(usize::MAX);
     if bytes.len() != expected {
         return Err(LabelError::Length { field, got: bytes.len(), expected, width, height });
     }
@@ -346,6 +347,8 @@ mod tests {
         assert_eq!(parse_u16_image("instance_ids", 2, 1, &[1, 0, 0, 1]).unwrap(), vec![1, 256]);
         let e = parse_u16_image("instance_ids", 2, 2, &[1, 0, 0, 1]).unwrap_err();
         assert!(e.to_string().contains("expected 8"), "{e}");
+        // A declared size whose byte count overflows is refused, not a panic.
+        assert!(parse_u16_image("instance_ids", u32::MAX, u32::MAX, &[0; 4]).is_err());
     }
 
     use crate::error_model::Profile;

@@ -36,7 +36,7 @@ pub enum IngressError {
     #[error("no audio chunk arrived for {waited_s:.1} s after {received_bytes} bytes; the upload stopped mid-way")]
     Stalled { waited_s: f64, received_bytes: usize },
     #[error("the client's audio stream failed after {received_bytes} bytes: {status}")]
-    ClientStream { received_bytes: usize, status: String },
+    ClientStream { received_bytes: usize, status: String, code: tonic::Code },
     #[error("data: no words recognised in {seconds:.1} s of sound")]
     NothingRecognised { seconds: f64 },
     #[error(transparent)]
@@ -54,6 +54,13 @@ impl From<IngressError> for Status {
             | IngressError::Input(_)
             | IngressError::NothingRecognised { .. } => Status::invalid_argument(msg),
             IngressError::Stalled { .. } => Status::deadline_exceeded(msg),
+            // A message that does not decode (tonic reports it as INTERNAL) is the caller's
+            // mistake; a size limit keeps its code; a stream cut off was cancelled.
+            IngressError::ClientStream { code: tonic::Code::Internal, .. } => Status::invalid_argument(msg),
+            IngressError::ClientStream {
+                code: code @ (tonic::Code::OutOfRange | tonic::Code::ResourceExhausted),
+                ..
+            } => Status::new(code, msg),
             IngressError::ClientStream { .. } => Status::cancelled(msg),
             IngressError::Model(ModelError::Missing(_)) => Status::failed_precondition(msg),
             IngressError::Model(_) => Status::internal(msg),
@@ -81,7 +88,11 @@ impl IngressApi {
             Err(_) => {
                 Err(IngressError::Stalled { waited_s: self.settings.chunk_timeout.as_secs_f64(), received_bytes })
             }
-            Ok(Err(status)) => Err(IngressError::ClientStream { received_bytes, status: status.message().to_string() }),
+            Ok(Err(status)) => Err(IngressError::ClientStream {
+                received_bytes,
+                status: status.message().to_string(),
+                code: status.code(),
+            }),
             Ok(Ok(chunk)) => Ok(chunk),
         }
     }
@@ -198,6 +209,11 @@ mod tests {
         assert_eq!(code(IngressError::Stalled { waited_s: 1.0, received_bytes: 0 }), tonic::Code::DeadlineExceeded);
         assert_eq!(code(ModelError::Missing("m".into()).into()), tonic::Code::FailedPrecondition);
         assert_eq!(code(ActorGone("ingress").into()), tonic::Code::Unavailable);
+        // A chunk that does not decode is the caller's mistake (found by fuzzing: it was CANCELLED).
+        let stream = |code| IngressError::ClientStream { received_bytes: 0, status: "failed to decode".into(), code };
+        assert_eq!(code(stream(tonic::Code::Internal)), tonic::Code::InvalidArgument);
+        assert_eq!(code(stream(tonic::Code::OutOfRange)), tonic::Code::OutOfRange);
+        assert_eq!(code(stream(tonic::Code::Cancelled)), tonic::Code::Cancelled);
         let too_long = Status::from(IngressError::from(InputError::TooLong { seconds: 75.0, limit_s: 60.0 }));
         assert_eq!(too_long.message(), "data: the audio is 75.0 s long; at most 60 s is accepted");
     }

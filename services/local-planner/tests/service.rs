@@ -77,7 +77,7 @@ fn frame(boxes: &Boxes, odom: pb::Pose2D, stamp: f64) -> pb::RgbdFrame {
         stamp,
         camera: Some(camera_to_proto(&camera())),
         rgb: None,
-        depth: Some(pb::DepthImage { width: W, height: H, data_mm: render(boxes).into() }),
+        depth: Some(pb::DepthImage { width: W, height: H, data_mm: render(boxes).into(), encoding: 0 }),
         odom: Some(pb::Pose2D { x: odom.x, y: odom.y, theta: odom.theta }),
         odom_twist: None,
         labels: None,

@@ -1239,8 +1239,10 @@ fn resolve(t: &[Token], ctx: Ellipsis) -> Vec<Directive> {
         || has_seq(&ws, &["stay", "away"]).is_some()
         || has_seq(&ws, &["keep", "away"]).is_some()
     {
-        if let Some(u) = ws.iter().position(|w| *w == "until") {
-            return resolve(&t[u..], ctx);
+        // The part from an "until" after the clause's first word: shorter, so this ends
+        // (a clause that begins with "until" is itself the constraint).
+        if let Some(u) = ws.iter().skip(1).position(|w| *w == "until") {
+            return resolve(&t[u + 1..], ctx);
         }
         return vec![Directive::Negated(text)];
     }

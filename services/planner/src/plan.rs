@@ -82,9 +82,15 @@ impl Reference {
         Some(Reference {
             relation: o.get("relation").and_then(Value::as_str).unwrap_or_default().to_string(),
             target: o.get("target").and_then(Value::as_str).unwrap_or_default().to_string(),
-            class_id: o.get("id").and_then(Value::as_i64).map(|x| x.clamp(-1, i32::MAX as i64) as i32).unwrap_or(-1),
+            class_id: o.get("id").and_then(as_integer).map(|x| x.clamp(-1, i32::MAX as i64) as i32).unwrap_or(-1),
         })
     }
+}
+
+/// An integer as the schema counts one: `3`, or a number with no fraction
+/// (`3.0`, `-0.0`), which JSON Schema's "integer" accepts too.
+fn as_integer(v: &Value) -> Option<i64> {
+    v.as_i64().or_else(|| v.as_f64().filter(|x| x.fract() == 0.0 && x.abs() < 9.0e18).map(|x| x as i64))
 }
 
 impl Step {
@@ -220,7 +226,7 @@ impl Plan {
                 target: s("target").unwrap_or_default(),
                 class_id: o
                     .get("id")
-                    .and_then(Value::as_i64)
+                    .and_then(as_integer)
                     .map(|x| x.clamp(i32::MIN as i64, i32::MAX as i64) as i32)
                     .unwrap_or(if matches!(action, Action::Find | Action::Follow) { -1 } else { 0 }),
                 person: s("person"),

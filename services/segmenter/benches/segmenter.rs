@@ -74,7 +74,12 @@ fn service(c: &mut Criterion) {
     let frame = RgbdFrame {
         camera: Some(camera_to_proto(&cam)),
         rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb.into() }),
-        depth: Some(DepthImage { width: W, height: H, data_mm: depth.iter().flat_map(|d| d.to_le_bytes()).collect() }),
+        depth: Some(DepthImage {
+            width: W,
+            height: H,
+            data_mm: depth.iter().flat_map(|d| d.to_le_bytes()).collect(),
+            encoding: 0,
+        }),
         ..Default::default()
     };
     let req = SegmentRequest { frame: Some(frame), classes: vec![], return_mask: true, point_stride: 4 };

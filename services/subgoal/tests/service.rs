@@ -51,7 +51,7 @@ fn frame(object: (u32, u32, u32, u32), object_m: f64, odom: pb::Pose2D, stamp: f
             depth_max_m: 10.0,
         })),
         rgb: None,
-        depth: Some(pb::DepthImage { width: W, height: H, data_mm: encode_depth_mm(&depth).into() }),
+        depth: Some(pb::DepthImage { width: W, height: H, data_mm: encode_depth_mm(&depth).into(), encoding: 0 }),
         odom: Some(odom),
         odom_twist: None,
         labels: None,

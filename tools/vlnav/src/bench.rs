@@ -22,7 +22,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
-use vlnav_edge_agent::{EdgeOptions, Hooks, LinkEvent};
+use vlnav_edge_agent::{DepthCodec, EdgeOptions, Hooks, LinkEvent};
 use vlnav_gateway::auth::{Role, TokenEntry, TokenFile};
 use vlnav_proto::v1::{
     GetMissionRequest, ListRobotsRequest, MissionState, SubmitMissionRequest, WatchMissionRequest,
@@ -39,6 +39,13 @@ use crate::up::{StackSecurity, UpArgs, up};
 /// What each robot is told, in turn: the paper's Case 2 (two searches, a
 /// follow and a goal: every stage works), then a way back, then a short move.
 pub const MISSIONS: [&str; 3] = [crate::CASE_2, "go back 3 m", "take a right turn and move 2 m ahead"];
+
+fn codec_name(c: DepthCodec) -> &'static str {
+    match c {
+        DepthCodec::Rvl => "rvl",
+        DepthCodec::Raw => "raw",
+    }
+}
 
 /// Robot ids of a benchmark run.
 fn robot_id(i: usize) -> String {
@@ -90,6 +97,9 @@ pub struct FleetArgs {
     /// World of every robot (each robot has its own copy).
     #[arg(long, default_value = "demo")]
     pub scenario: String,
+    /// How the robots send depth (the edge agent's --depth-codec).
+    #[arg(long, value_enum, default_value_t = DepthCodec::Raw)]
+    pub depth_codec: DepthCodec,
     /// While measuring, a client floods SubmitMission from 16 concurrent
     /// calls with its own token.
     #[arg(long)]
@@ -116,6 +126,8 @@ pub struct RobotsArgs {
     pub frame_rate: f64,
     #[arg(long)]
     pub scenario: String,
+    #[arg(long, value_enum)]
+    pub depth_codec: DepthCodec,
 }
 
 #[derive(clap::Args, Clone, Debug)]
@@ -169,6 +181,8 @@ pub struct FleetReport {
     pub width: u32,
     pub height: u32,
     pub frame_rate: f64,
+    #[serde(default)]
+    pub depth_codec: String,
     /// Frames each robot actually sent per second (below `frame_rate` when
     /// the robots' own simulation cannot keep up).
     pub achieved_frame_rate: f64,
@@ -194,22 +208,33 @@ pub struct FleetReport {
     /// Gateway and every stage (one process).
     pub stack_cpu_percent: f64,
     pub stack_rss_mib: f64,
+    /// The stack's busiest threads by name, CPU percent (100 = one core): a
+    /// stage whose actor thread nears 100 % is the bottleneck.
+    #[serde(default)]
+    pub stack_threads: Vec<(String, f64)>,
     /// The simulated robots (the other process).
     pub robots_cpu_percent: f64,
     pub robots_rss_mib: f64,
     pub flood: Option<FloodReport>,
+    /// Why the run could not be measured (a sweep goes on to the next count).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
 }
 
 impl std::fmt::Display for FleetReport {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if let Some(e) = &self.error {
+            return write!(f, "{} robots, {}x{}: not measured: {e}", self.robots, self.width, self.height);
+        }
         writeln!(
             f,
-            "{} robots, {}x{} at {} fps ({:.1} achieved), {} perception, {:.0} s measured{}",
+            "{} robots, {}x{} at {} fps ({:.1} achieved), {} depth, {} perception, {:.0} s measured{}",
             self.robots,
             self.width,
             self.height,
             self.frame_rate,
             self.achieved_frame_rate,
+            self.depth_codec,
             self.perception,
             self.seconds,
             if self.flood.is_some() { ", while a client floods SubmitMission" } else { "" }
@@ -240,6 +265,10 @@ impl std::fmt::Display for FleetReport {
             "  CPU: stack {:.0} %, robots {:.0} % (100 % = one core); memory: stack {:.0} MiB, robots {:.0} MiB",
             self.stack_cpu_percent, self.robots_cpu_percent, self.stack_rss_mib, self.robots_rss_mib
         )?;
+        if !self.stack_threads.is_empty() {
+            let threads: Vec<String> = self.stack_threads.iter().map(|(n, p)| format!("{n} {p:.0} %")).collect();
+            write!(f, "\n  busiest stack threads: {}", threads.join(", "))?;
+        }
         if let Some(fl) = &self.flood {
             write!(
                 f,
@@ -269,6 +298,41 @@ fn proc_usage(pid: u32) -> anyhow::Result<(f64, f64)> {
         .and_then(|v| v.parse::<f64>().ok())
         .unwrap_or(0.0);
     Ok((cpu, rss_kib / 1024.0))
+}
+
+/// CPU seconds of every thread of a process, by thread id, with its name.
+fn thread_usage(pid: u32) -> std::collections::HashMap<u32, (String, f64)> {
+    let mut out = std::collections::HashMap::new();
+    let Ok(dir) = std::fs::read_dir(format!("/proc/{pid}/task")) else { return out };
+    for entry in dir.flatten() {
+        let Some(tid) = entry.file_name().to_str().and_then(|t| t.parse::<u32>().ok()) else { continue };
+        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else { continue };
+        let (Some(open), Some(close)) = (stat.find('('), stat.rfind(')')) else { continue };
+        let name = stat[open + 1..close].to_string();
+        let fields: Vec<&str> = stat[close + 1..].split_whitespace().collect();
+        let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+        out.insert(tid, (name, (ticks(11) + ticks(12)) / 100.0));
+    }
+    out
+}
+
+/// The busiest kinds of thread between two [`thread_usage`] readings: CPU
+/// percent (100 = one core) summed by thread name, busiest first.
+fn busiest(
+    before: &std::collections::HashMap<u32, (String, f64)>,
+    after: &std::collections::HashMap<u32, (String, f64)>,
+    seconds: f64,
+    top: usize,
+) -> Vec<(String, f64)> {
+    let mut by_name: std::collections::BTreeMap<String, f64> = Default::default();
+    for (tid, (name, cpu)) in after {
+        let base = before.get(tid).map_or(0.0, |(_, c)| *c);
+        *by_name.entry(name.clone()).or_default() += (cpu - base).max(0.0) / seconds.max(1e-9) * 100.0;
+    }
+    let mut v: Vec<(String, f64)> = by_name.into_iter().filter(|(_, p)| *p >= 0.5).collect();
+    v.sort_by(|a, b| b.1.total_cmp(&a.1));
+    v.truncate(top);
+    v
 }
 
 /// The `q` quantile (0–1) of sorted values; 0 when empty.
@@ -360,6 +424,7 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
             frame_rate: args.frame_rate,
             width: Some(args.width),
             height: Some(args.height),
+            depth_codec: args.depth_codec,
             ..EdgeOptions::default()
         };
         if let Some(pki) = &pki {
@@ -586,6 +651,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         .args(["bench", "robots", "--gateway", &uri, "--robots", &n.to_string()])
         .args(["--width", &args.width.to_string(), "--height", &args.height.to_string()])
         .args(["--frame-rate", &args.frame_rate.to_string(), "--scenario", &args.scenario])
+        .args(["--depth-codec", codec_name(args.depth_codec)])
         .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
         .kill_on_drop(true);
@@ -629,6 +695,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         let (succeeded0, failed0) = (counts.succeeded.load(Ordering::Relaxed), counts.failed.load(Ordering::Relaxed));
         let me = std::process::id();
         let (cpu0, _) = proc_usage(me)?;
+        let threads0 = thread_usage(me);
         let t0 = Instant::now();
         to_child.write_all(b"start\n").await?;
         let flooding = if args.flood {
@@ -642,6 +709,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         to_child.write_all(b"stop\n").await?;
         let seconds = t0.elapsed().as_secs_f64();
         let (cpu1, rss) = proc_usage(me)?;
+        let stack_threads = busiest(&threads0, &thread_usage(me), seconds, 6);
         let skipped1 = skipped(&fleet.list_robots(ListRobotsRequest {}).await?.into_inner().robots);
         let flood = match flooding {
             Some((stop, task)) => {
@@ -662,6 +730,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             width: args.width,
             height: args.height,
             frame_rate: args.frame_rate,
+            depth_codec: codec_name(args.depth_codec).into(),
             achieved_frame_rate: robots.frames_sent as f64 / (n as f64 * robots.seconds.max(1e-9)),
             frames_sent: robots.frames_sent,
             cycles: robots.cycles,
@@ -680,9 +749,11 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             submissions_refused: counts.refused.load(Ordering::Relaxed) - refused0,
             stack_cpu_percent: (cpu1 - cpu0) / seconds * 100.0,
             stack_rss_mib: rss,
+            stack_threads,
             robots_cpu_percent: robots.cpu_percent,
             robots_rss_mib: robots.rss_mib,
             flood,
+            error: None,
         })
     }
     .await;
@@ -697,8 +768,23 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
 pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::Result<Vec<FleetReport>> {
     let counts = if args.sweep.is_empty() { vec![args.robots] } else { args.sweep.clone() };
     let mut reports = Vec::new();
+    let sweep = counts.len() > 1;
     for n in counts {
-        let report = fleet_run(args, n).await?;
+        let report = match fleet_run(args, n).await {
+            Ok(r) => r,
+            // One count that cannot be measured does not end a sweep; it is reported.
+            Err(e) if sweep => FleetReport {
+                robots: n,
+                perception: args.perception.as_str().into(),
+                width: args.width,
+                height: args.height,
+                frame_rate: args.frame_rate,
+                depth_codec: codec_name(args.depth_codec).into(),
+                error: Some(format!("{e:#}")),
+                ..Default::default()
+            },
+            Err(e) => return Err(e),
+        };
         if args.json {
             writeln!(out, "{}", serde_json::to_string(&report)?)?;
         } else {
@@ -724,6 +810,9 @@ pub fn plot(args: &PlotArgs) -> anyhow::Result<()> {
             })
             .collect::<anyhow::Result<_>>()?;
         anyhow::ensure!(!runs.is_empty(), "{} holds no runs", path.display());
+        // A run without a measured cycle (no frame answered while driving) has no point to draw.
+        runs.retain(|r| r.error.is_none() && r.cycles > 0);
+        anyhow::ensure!(!runs.is_empty(), "{} holds no measured runs", path.display());
         runs.sort_by_key(|r| r.robots);
         series.push(runs);
     }
@@ -735,10 +824,11 @@ pub fn plot(args: &PlotArgs) -> anyhow::Result<()> {
 fn series_label(runs: &[FleetReport]) -> String {
     let r = &runs[0];
     format!(
-        "{} perception, {}x{}{}",
+        "{} perception, {}x{}, {} depth{}",
         r.perception,
         r.width,
         r.height,
+        r.depth_codec,
         if r.flood.is_some() { ", SubmitMission flood" } else { "" }
     )
 }
@@ -910,6 +1000,17 @@ mod tests {
     fn this_process_reports_cpu_and_memory() {
         let (cpu, rss) = proc_usage(std::process::id()).unwrap();
         assert!(cpu >= 0.0 && rss > 1.0, "cpu {cpu} s, rss {rss} MiB");
+        let threads = thread_usage(std::process::id());
+        assert!(!threads.is_empty());
+    }
+
+    #[test]
+    fn the_busiest_threads_are_summed_by_name() {
+        let at = |v: &[(u32, &str, f64)]| v.iter().map(|(t, n, c)| (*t, (n.to_string(), *c))).collect();
+        let before = at(&[(1, "worker", 1.0), (2, "worker", 1.0), (3, "segmenter-actor", 0.0)]);
+        let after = at(&[(1, "worker", 2.0), (2, "worker", 1.5), (3, "segmenter-actor", 1.8), (4, "new", 0.001)]);
+        let b = busiest(&before, &after, 2.0, 5);
+        assert_eq!(b, vec![("segmenter-actor".to_string(), 90.0), ("worker".to_string(), 75.0)]);
     }
 
     #[test]
@@ -921,13 +1022,15 @@ mod tests {
             perception: perception.into(),
             width: 640,
             height: 480,
+            depth_codec: "rvl".into(),
             ..Default::default()
         };
         let a = vec![run(1, 5.0, 9.0, "oracle"), run(10, 6.0, 20.0, "oracle"), run(100, 80.0, 900.0, "oracle")];
         let b = vec![run(1, 8.0, 15.0, "realistic"), run(10, 12.0, 60.0, "realistic")];
         let svg = plot_svg(&[a, b], 50.0);
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
-        assert!(svg.contains("oracle perception, 640x480") && svg.contains("realistic perception, 640x480"));
+        assert!(svg.contains("oracle perception, 640x480, rvl depth"), "{svg}");
+        assert!(svg.contains("realistic perception, 640x480"));
         assert!(svg.contains("goal: p99 ≤ 50 ms"));
         assert_eq!(svg.matches("<circle").count(), 5);
         assert!(!svg.contains("NaN") && !svg.contains("inf"));
