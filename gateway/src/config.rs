@@ -42,6 +42,25 @@ pub struct GatewayOptions {
     /// The live view and the mission recordings (docs/observability.md).
     #[command(flatten)]
     pub view: crate::viz::ViewOptions,
+    /// How long the executor waits for one stage call, seconds of wall
+    /// time: a stage that accepted a call and never answers (a stuck
+    /// handler answers HTTP/2 pings, so keepalive never ends the call) is a
+    /// failed stage after this, held and retried like a refused call
+    /// (docs/architecture.md, "Overload").
+    #[arg(long, env = "VLNAV_STAGE_TIMEOUT_S", default_value_t = DEFAULT_STAGE_TIMEOUT_S, value_parser = positive_seconds)]
+    pub stage_timeout_s: f64,
+}
+
+/// `--stage-timeout-s` by default: as long as a stage may stay down before
+/// its mission fails (`executor::machine::STAGE_OUTAGE_S`).
+pub const DEFAULT_STAGE_TIMEOUT_S: f64 = 10.0;
+
+/// A duration in seconds that is finite and above zero.
+fn positive_seconds(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 86_400.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a duration in seconds between 0 and 86400 (e.g. 10 or 2.5)")),
+    }
 }
 
 /// Mission-executor parameters. Durations are sensor time.
@@ -144,6 +163,7 @@ impl GatewayOptions {
             view: crate::viz::ViewOptions::off(),
             submit_per_minute: 60,
             submit_burst: 20,
+            stage_timeout_s: DEFAULT_STAGE_TIMEOUT_S,
         }
     }
 }

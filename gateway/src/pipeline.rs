@@ -21,6 +21,8 @@ pub struct Pipeline {
     pub segmenter: SegmenterServiceClient<TracedChannel>,
     pub subgoal: SubgoalServiceClient<TracedChannel>,
     pub local_planner: LocalPlannerServiceClient<TracedChannel>,
+    /// The deadline of each call the executor makes (`--stage-timeout-s`).
+    pub stage_timeout: std::time::Duration,
 }
 
 /// Frames are large; allow what a 4096² RGB-D frame needs.
@@ -50,6 +52,7 @@ impl Pipeline {
             segmenter: stage_client!(SegmenterServiceClient, &opts.segmenter_uri, s),
             subgoal: stage_client!(SubgoalServiceClient, &opts.subgoal_uri, s),
             local_planner: stage_client!(LocalPlannerServiceClient, &opts.local_planner_uri, s),
+            stage_timeout: std::time::Duration::from_secs_f64(opts.stage_timeout_s),
         })
     }
 }

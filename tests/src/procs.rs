@@ -223,11 +223,13 @@ pub struct StackOptions {
     pub proxied: Vec<&'static str>,
     /// `RUST_LOG` of the servers.
     pub log: String,
+    /// More arguments for the gateway (`--stage-timeout-s 2`, …).
+    pub gateway_args: Vec<String>,
 }
 
 impl Default for StackOptions {
     fn default() -> Self {
-        Self { perception: Perception::Oracle, proxied: Vec::new(), log: "warn".into() }
+        Self { perception: Perception::Oracle, proxied: Vec::new(), log: "warn".into(), gateway_args: Vec::new() }
     }
 }
 
@@ -280,6 +282,7 @@ impl ProcStack {
             "--record".into(),
             "false".into(),
         ]);
+        gateway_args.extend(opts.gateway_args.iter().cloned());
         let gateway = stack.service(&bin, GATEWAY, port, gateway_args, &models, &opts.log);
         stack.services.insert(GATEWAY.to_string(), gateway);
         // Start everything, then wait: the stages load their models side by side.
@@ -334,6 +337,28 @@ impl ProcStack {
     /// Kills `name` with SIGKILL (no shutdown of any kind) and reaps it.
     pub fn kill(&mut self, name: &str) {
         self.service_mut(name).kill();
+    }
+
+    /// Freezes `name` with SIGSTOP: its sockets stay open and the kernel
+    /// still accepts bytes for it, but nothing answers, not even HTTP/2
+    /// pings; [`ProcStack::thaw`] lets it go on where it stopped.
+    pub fn freeze(&self, name: &str) -> anyhow::Result<()> {
+        self.signal(name, libc::SIGSTOP)
+    }
+
+    /// Lets a frozen `name` run again (SIGCONT).
+    pub fn thaw(&self, name: &str) -> anyhow::Result<()> {
+        self.signal(name, libc::SIGCONT)
+    }
+
+    fn signal(&self, name: &str, signal: libc::c_int) -> anyhow::Result<()> {
+        let pid = self.service_of(name).pid().with_context(|| format!("{name} is not running"))?;
+        let pid = libc::pid_t::try_from(pid).context("process id")?;
+        // SAFETY: kill(2) on a child this stack started and has not reaped.
+        if unsafe { libc::kill(pid, signal) } != 0 {
+            anyhow::bail!("signal {signal} to {name}: {}", std::io::Error::last_os_error());
+        }
+        Ok(())
     }
 
     /// Starts `name` again, same port and arguments, and waits until it is ready.

@@ -10,7 +10,12 @@
 //! 3. `partition`: the link between the edge agent and the gateway (a
 //!    `vlnav_e2e::proxy::Proxy`) is blackholed, then cut, then healed;
 //! 4. `stage-link`: the link between the gateway and one stage is delayed
-//!    (2 s per chunk) or blackholed, then healed.
+//!    (2 s per chunk) or blackholed, then healed;
+//! 5. `stage-freeze`: a stage server is frozen with SIGSTOP (it keeps its
+//!    connections and answers nothing, not even HTTP/2 pings, like a stuck
+//!    handler) for longer than a stage may stay down, then let go (SIGCONT).
+//!    The gateway runs with a 2 s `--stage-timeout-s`; the mission must fail
+//!    naming the stage before the stage is let go, not hang on the call.
 //!
 //! Every run asserts:
 //! - (a) the robot is commanded zero no later than `deadman_timeout_s` + one
@@ -74,6 +79,8 @@ enum Fault {
     /// Delay (by `delay`) or blackhole (`delay` = None) the gateway's link to
     /// `stage` for `lasting`, then heal it.
     StageLink { stage: &'static str, delay: Option<Duration>, lasting: Duration },
+    /// SIGSTOP `stage` for `lasting`, then SIGCONT.
+    FreezeStage { stage: &'static str, lasting: Duration },
 }
 
 impl Fault {
@@ -105,6 +112,9 @@ impl Fault {
             Fault::KillStage { stage, .. } | Fault::StageLink { stage, .. } => {
                 state == MissionState::Succeeded || failed_naming(stage)
             }
+            // Frozen for longer than a stage may be down: only a failure will
+            // do, and it says the stage did not answer.
+            Fault::FreezeStage { stage, .. } => failed_naming(stage) && m.reason.contains("did not answer"),
             Fault::Partition { .. } => state == MissionState::Succeeded,
         };
         if ok { Ok(()) } else { Err(format!("mission {} ended {state:?}: {:?}", m.mission_id, m.reason)) }
@@ -239,7 +249,13 @@ async fn moving_under(bench: &Bench, robot: &SimRobot, mission_id: &str, within:
 
 /// Injects the fault and heals it; returns the sensor time just before the
 /// part was back (the robot must be still until then).
-async fn inject(bench: &mut Bench, fault: &Fault, robot: &SimRobot, probes: &mut Vec<String>) -> Result<f64, String> {
+async fn inject(
+    bench: &mut Bench,
+    fault: &Fault,
+    robot: &SimRobot,
+    mission_id: &str,
+    probes: &mut Vec<String>,
+) -> Result<f64, String> {
     match fault {
         Fault::KillStage { stage, down } => {
             bench.stack.kill(stage);
@@ -296,6 +312,18 @@ async fn inject(bench: &mut Bench, fault: &Fault, robot: &SimRobot, probes: &mut
             link.pass();
             Ok(heal)
         }
+        Fault::FreezeStage { stage, lasting } => {
+            bench.stack.freeze(stage).map_err(|e| format!("{e:#}"))?;
+            // The mission must end while the stage is still frozen: a call
+            // that is never answered fails at the gateway's deadline.
+            let ended = finished(bench, mission_id, *lasting).await;
+            let heal = robot.now();
+            bench.stack.thaw(stage).map_err(|e| format!("{e:#}"))?;
+            if let Err(e) = ended {
+                probes.push(format!("the mission did not end while {stage} was frozen: {e}"));
+            }
+            Ok(heal)
+        }
     }
 }
 
@@ -316,7 +344,7 @@ async fn one_run(bench: &mut Bench, fault: &Fault, run: usize, seed: u64, rng: &
             return Err(format!("the robot was not moving under the mission when the fault came: {at:?}"));
         }
         let fault_stamp = at.stamp;
-        let heal_stamp = inject(bench, fault, &robot, &mut out.problems).await?;
+        let heal_stamp = inject(bench, fault, &robot, &mission.mission_id, &mut out.problems).await?;
 
         // (b) the mission ends, for a reason a person understands.
         match finished(bench, &mission.mission_id, Duration::from_secs(150)).await {
@@ -498,6 +526,18 @@ async fn a_slow_or_blackholed_stage_link_stops_the_robot() {
         // Runs alternate: a slow link, then a dead one.
         let delay = (run % 2 == 0).then_some(Duration::from_secs(2));
         Fault::StageLink { stage, delay, lasting: between(rng, 3000, 6000) }
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_frozen_stage_fails_the_mission_at_the_call_deadline() {
+    let opts = StackOptions { gateway_args: vec!["--stage-timeout-s".into(), "2".into()], ..StackOptions::default() };
+    scenario("stage-freeze", opts, |run, rng| Fault::FreezeStage {
+        stage: if run % 2 == 0 { "local-planner" } else { "segmenter" },
+        // Longer than a stage may stay down (10 s of sensor time) plus the
+        // first call's deadline, with room to spare.
+        lasting: between(rng, 20_000, 25_000),
     })
     .await;
 }

@@ -2,6 +2,8 @@
 //! the gRPC calls that answer it, and every generated type is converted here,
 //! once, at the edge.
 
+use std::time::Duration;
+
 use nalgebra::Vector3;
 use vlnav_proto::v1 as pb;
 
@@ -11,8 +13,19 @@ use super::machine::{MoveQuery, PlannerReply, Reply, Request, StageFailure};
 use super::model::*;
 use crate::pipeline::Pipeline;
 
-fn stage(stage: &'static str) -> impl FnOnce(tonic::Status) -> StageFailure {
-    move |s| StageFailure { stage, message: s.message().to_string() }
+/// A stage's error status as the mission's failure: a call past its
+/// deadline says how long it was waited for.
+fn stage(stage: &'static str, deadline: Duration) -> impl FnOnce(tonic::Status) -> StageFailure {
+    move |s| {
+        let past_deadline = s.code() == tonic::Code::DeadlineExceeded
+            || (s.code() == tonic::Code::Cancelled && s.message().contains("Timeout expired"));
+        let message = if past_deadline {
+            format!("it did not answer within {:.1} s (--stage-timeout-s)", deadline.as_secs_f64())
+        } else {
+            s.message().to_string()
+        };
+        StageFailure { stage, message }
+    }
 }
 
 /// The stages, over gRPC, for one robot and one frame.
@@ -27,6 +40,20 @@ pub struct Stages<'a> {
 }
 
 impl Stages<'_> {
+    /// `message` as a request with the stage deadline: the channel ends the
+    /// call at the deadline (tonic enforces `grpc-timeout` on the client
+    /// side too), and the stage sees it.
+    fn deadline<T>(&self, message: T) -> tonic::Request<T> {
+        let mut request = tonic::Request::new(message);
+        request.set_timeout(self.pipeline.stage_timeout);
+        request
+    }
+
+    /// `stage`'s error mapping, naming this pipeline's deadline.
+    fn failed(&self, name: &'static str) -> impl FnOnce(tonic::Status) -> StageFailure + use<> {
+        stage(name, self.pipeline.stage_timeout)
+    }
+
     pub async fn call(&mut self, request: Request) -> Result<Reply, StageFailure> {
         let pipeline = self.pipeline;
         match request {
@@ -34,9 +61,9 @@ impl Stages<'_> {
                 pipeline
                     .local_planner
                     .clone()
-                    .reset_robot(pb::ResetRobotRequest { robot_id: self.robot_id.to_string() })
+                    .reset_robot(self.deadline(pb::ResetRobotRequest { robot_id: self.robot_id.to_string() }))
                     .await
-                    .map_err(stage("local-planner"))?;
+                    .map_err(self.failed("local-planner"))?;
                 let goal = match move_goal {
                     Some(q) => Some(self.move_goal(q).await?),
                     None => None,
@@ -51,8 +78,8 @@ impl Stages<'_> {
                         let mut detector = pipeline.detector.clone();
                         let request =
                             pb::DetectRequest { frame: Some(self.frame.clone()), class_ids: vec![], min_score };
-                        let (detected, no_go) = tokio::join!(detector.detect(request), segment);
-                        let boxes = detected.map_err(stage("detector"))?.into_inner().boxes;
+                        let (detected, no_go) = tokio::join!(detector.detect(self.deadline(request)), segment);
+                        let boxes = detected.map_err(self.failed("detector"))?.into_inner().boxes;
                         self.no_go = no_go?;
                         boxes.iter().map(detection_from_proto).collect()
                     }
@@ -67,14 +94,14 @@ impl Stages<'_> {
                 let identities = pipeline
                     .reid
                     .clone()
-                    .identify(pb::IdentifyRequest {
+                    .identify(self.deadline(pb::IdentifyRequest {
                         frame: Some(self.frame.clone()),
                         boxes: boxes.iter().map(detection_to_proto).collect(),
                         threshold: 0.0,
                         name,
-                    })
+                    }))
                     .await
-                    .map_err(stage("reid"))?
+                    .map_err(self.failed("reid"))?
                     .into_inner()
                     .identities;
                 Ok(Reply::Identified(
@@ -93,15 +120,15 @@ impl Stages<'_> {
                 let est = pipeline
                     .subgoal
                     .clone()
-                    .target_goal(pb::TargetGoalRequest {
+                    .target_goal(self.deadline(pb::TargetGoalRequest {
                         track_key,
                         frame: Some(depth_only(self.frame)),
                         r#box: Some(detection_to_proto(&detection)),
                         d_s,
                         moving,
-                    })
+                    }))
                     .await
-                    .map_err(stage("subgoal"))?
+                    .map_err(self.failed("subgoal"))?
                     .into_inner();
                 let status = match pb::EstimateStatus::try_from(est.status) {
                     Ok(pb::EstimateStatus::Ok) => EstimateStatus::Ok,
@@ -121,15 +148,15 @@ impl Stages<'_> {
                 let plan = pipeline
                     .local_planner
                     .clone()
-                    .plan_step(pb::PlanStepRequest {
+                    .plan_step(self.deadline(pb::PlanStepRequest {
                         robot_id: self.robot_id.to_string(),
                         frame: Some(depth_only(self.frame)),
                         goal: Some(goal_to_proto(&goal)),
                         no_go_points: self.no_go.clone(),
                         max_speed: 0.0,
-                    })
+                    }))
                     .await
-                    .map_err(stage("local-planner"))?
+                    .map_err(self.failed("local-planner"))?
                     .into_inner();
                 let status = match pb::LocalPlanStatus::try_from(plan.status) {
                     Ok(pb::LocalPlanStatus::Moving) => DriveStatus::Moving,
@@ -157,27 +184,28 @@ impl Stages<'_> {
             .pipeline
             .subgoal
             .clone()
-            .move_goal(pb::MoveGoalRequest {
+            .move_goal(self.deadline(pb::MoveGoalRequest {
                 anchor: Some(pose_to_proto(&q.anchor)),
                 f_dist: q.f_dist,
                 yaw: q.yaw,
                 d_s: q.d_s,
-            })
+            }))
             .await
-            .map_err(stage("subgoal"))?
+            .map_err(self.failed("subgoal"))?
             .into_inner();
         goal_from_proto(&goal)
     }
 
     fn segment(&self) -> impl Future<Output = Result<Vec<pb::Point3>, StageFailure>> + use<> {
         let mut segmenter = self.pipeline.segmenter.clone();
-        let request = pb::SegmentRequest {
+        let request = self.deadline(pb::SegmentRequest {
             frame: Some(self.frame.clone()),
             classes: vec![],
             return_mask: false,
             point_stride: 0,
-        };
-        async move { Ok(segmenter.segment(request).await.map_err(stage("segmenter"))?.into_inner().virtual_points) }
+        });
+        let failed = self.failed("segmenter");
+        async move { Ok(segmenter.segment(request).await.map_err(failed)?.into_inner().virtual_points) }
     }
 }
 
