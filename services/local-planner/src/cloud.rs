@@ -70,6 +70,15 @@ pub struct Cell {
     pub no_go: bool,
 }
 
+impl Cell {
+    /// What the robot's body must not take in: an obstacle (at least two
+    /// voxels above the floor) or a no-go region (a marked zone, a cable, a
+    /// hazard: soft contact is entering one, docs/design.md §6).
+    pub fn keeps_out(&self) -> bool {
+        self.blocking >= 2 || self.no_go
+    }
+}
+
 /// The downsampled obstacles of one frame.
 #[derive(Clone, Debug, Default)]
 pub struct ObstacleCloud {

@@ -45,14 +45,16 @@
 //!   rectangle (`half_length_m` × `half_width_m`, plus `guard_margin_m`) is
 //!   moved along the commanded arc for one frame period plus the distance
 //!   needed to stop (`v / 2·max_accel`); if it would take in a blocking cell
-//!   (≥ 2 voxels, this frame's or remembered) that it does not already
-//!   cover, the command is reduced — the turn alone, the straight part
+//!   (≥ 2 voxels) or a no-go cell (a marked zone, a cable: the paths keep
+//!   their 0.45 m tube off it, but a corner swinging round a cable's end
+//!   entered it — soft contact, docs/design.md §6), this frame's or
+//!   remembered, that it does not already cover, the command is reduced — the turn alone, the straight part
 //!   alone, or a stop. A robot stopped by the guard within the goal's
 //!   position tolerance has reached it (as close as its body fits); farther
 //!   away, the progress watchdog takes over.
 //! - Goals beside obstacles: a goal whose footprint (the rectangle at the
 //!   goal, facing the goal's heading, plus `guard_margin_m`) would hold a
-//!   blocking cell — an approach goal on the line to a hydrant that stands
+//!   blocking or no-go cell — an approach goal on the line to a hydrant that stands
 //!   0.15 m from a wall, a MOVE that ends beside a parked car — is moved
 //!   sideways, across its heading, by the smallest multiple of 0.05 m up to
 //!   `goal_shift_max_m` (0.4 m) that clears it. Across the heading, the
@@ -364,7 +366,8 @@ impl RobotState {
 }
 
 impl RobotState {
-    /// Whether the arc (v, ω) held for `horizon` s brings a blocking cell
+    /// Whether the arc (v, ω) held for `horizon` s brings a cell the body
+    /// must keep out of (an obstacle or a no-go region, [`Cell::keeps_out`])
     /// into the (margin-inflated) footprint that it does not cover now.
     fn footprint_hits(&self, v: f64, w: f64, horizon: f64, p: &FollowParams) -> bool {
         const SAMPLES: usize = 6;
@@ -382,7 +385,7 @@ impl RobotState {
         self.cloud
             .cells
             .iter()
-            .filter(|c| c.blocking >= 2 && c.x * c.x + c.y * c.y <= reach * reach && !inside(c.x, c.y))
+            .filter(|c| c.keeps_out() && c.x * c.x + c.y * c.y <= reach * reach && !inside(c.x, c.y))
             .any(|c| {
                 poses.iter().any(|&(x, y, cs, sn)| {
                     let (dx, dy) = (c.x - x, c.y - y);
@@ -392,11 +395,11 @@ impl RobotState {
     }
 
     /// Whether the footprint centred at `centre` (`base_link`) facing
-    /// `heading` (rad, `base_link`) holds no blocking cell.
+    /// `heading` (rad, `base_link`) holds no cell the body must keep out of.
     fn footprint_clear_at(&self, centre: &Vector2<f64>, heading: f64, p: &FollowParams) -> bool {
         let (hl, hw) = (p.half_length_m + p.guard_margin_m, p.half_width_m + p.guard_margin_m);
         let (s, c) = heading.sin_cos();
-        !self.cloud.cells.iter().filter(|cell| cell.blocking >= 2).any(|cell| {
+        !self.cloud.cells.iter().filter(|cell| cell.keeps_out()).any(|cell| {
             let (dx, dy) = (f64::from(cell.x) - centre.x, f64::from(cell.y) - centre.y);
             (c * dx + s * dy).abs() <= hl && (-s * dx + c * dy).abs() <= hw
         })
@@ -974,6 +977,26 @@ mod tests {
             ..RobotState::default()
         };
         assert_eq!(ghost.guard(0.5, 0.0, 0.2, &p), (0.5, 0.0));
+    }
+
+    #[test]
+    fn the_guard_keeps_the_footprint_out_of_no_go_regions_too() {
+        let p = FollowParams::default();
+        // A cable's end diagonally ahead, 0.45 m to the left, on the floor:
+        // no voxel above it, only the segmenter's no-go cell. A left arc
+        // would swing the front-left corner over it, as it would into a post.
+        let cable = |no_go| RobotState {
+            cloud: ObstacleCloud {
+                cells: vec![Cell { x: 0.6, y: 0.45, blocking: 0, low: false, no_go }],
+                ..ObstacleCloud::default()
+            },
+            ..RobotState::default()
+        };
+        assert_eq!(cable(true).guard(0.5, 1.0, 0.2, &p), (0.0, 1.0));
+        assert_eq!(cable(false).guard(0.5, 1.0, 0.2, &p), (0.5, 1.0), "a bare floor cell is no reason to stop");
+        // A goal whose footprint would lie on it is moved sideways off it.
+        assert!(!cable(true).footprint_clear_at(&Vector2::new(0.6, 0.2), 0.0, &p));
+        assert!(cable(true).footprint_clear_at(&Vector2::new(0.6, -0.0), 0.0, &p));
     }
 
     #[test]
