@@ -413,6 +413,7 @@ pub fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
             let phase = match phase {
                 ExplorePhase::Scan => "scan",
                 ExplorePhase::Search => "search",
+                ExplorePhase::Revisit => "revisit",
             };
             (Kind::Exploring(pb::Exploring { index, phase: phase.into(), attempt }), Box::new(|_| {}))
         }

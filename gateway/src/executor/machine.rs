@@ -41,6 +41,12 @@
 //!   the step's `reference`): while it is unconfirmed, the instance whose
 //!   footprint stands nearest where a reference box has stood this step is
 //!   the candidate (docs/perception.md, "Relations").
+//!   Objects of every class seen during the mission's FIND steps are
+//!   remembered where they stood (odom footprints, [`Landmark`]): a FIND
+//!   whose target is not in view, and whose class an earlier step saw,
+//!   first drives toward that place to look again (the landmark passed on
+//!   the way, now hidden behind the one just reached) before it looks around
+//!   (docs/perception.md, "Objects seen on the way").
 //! - FOLLOW: FIND with a moving-target track, kept for a while.
 //! - RETURN: back to the odometry pose where the mission started.
 //! - A stage that fails holds the robot and backs off in sensor time; one that
@@ -92,6 +98,10 @@ const REFERENCE_MARGIN_M: f64 = 0.5;
 /// forgotten first.
 const REFERENCE_SAME_M: f64 = 0.75;
 const REFERENCE_PLACES: usize = 16;
+/// Places of objects seen during the mission's FIND steps kept at most;
+/// the least seen is forgotten first.
+const LANDMARK_PLACES: usize = 64;
+
 /// Sensor seconds one scan turn of exploration may take before looking anyway.
 const SCAN_TURN_LIMIT_S: f64 = 4.0;
 /// A search leg slower than this on average ends early, m/s.
@@ -193,6 +203,64 @@ pub enum ExplorePlan {
     Ask,
 }
 
+/// Where an object stood when a FIND step saw it: the footprints of a
+/// class's boxes within `REFERENCE_SAME_M` of each other are one object,
+/// at their running mean.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Landmark {
+    pub class_id: i32,
+    /// Odom, on the floor.
+    pub at: Vector2<f64>,
+    /// Frames a box of the class stood there.
+    pub sightings: u32,
+    /// The plan step that saw it last.
+    pub step: usize,
+}
+
+/// Adds this frame's footprints (`class`, odom) seen by step `step` to `landmarks`.
+fn remember_landmarks(landmarks: &mut Vec<Landmark>, seen: impl IntoIterator<Item = (i32, Vector2<f64>)>, step: usize) {
+    for (class_id, at) in seen {
+        let same = landmarks
+            .iter_mut()
+            .filter(|l| l.class_id == class_id && (l.at - at).norm() <= REFERENCE_SAME_M)
+            .min_by(|a, b| (a.at - at).norm().total_cmp(&(b.at - at).norm()));
+        match same {
+            Some(l) => {
+                l.sightings = l.sightings.saturating_add(1);
+                l.at += (at - l.at) / f64::from(l.sightings);
+                l.step = step;
+            }
+            None => {
+                if landmarks.len() == LANDMARK_PLACES
+                    && let Some(i) = (0..landmarks.len()).min_by_key(|&i| (landmarks[i].sightings, landmarks[i].step))
+                {
+                    landmarks.swap_remove(i);
+                }
+                landmarks.push(Landmark { class_id, at, sightings: 1, step });
+            }
+        }
+    }
+}
+
+/// The place to look for a `class_id` target first when step `step` does
+/// not see it: the nearest to `pose` of the objects of that class an
+/// earlier step saw in at least `min_sightings` frames (one stray box — a
+/// false positive — is not a place).
+pub fn remembered(
+    landmarks: &[Landmark],
+    class_id: i32,
+    step: usize,
+    min_sightings: u32,
+    pose: Pose2,
+) -> Option<Vector2<f64>> {
+    let here = Vector2::new(pose.x, pose.y);
+    landmarks
+        .iter()
+        .filter(|l| l.class_id == class_id && l.step < step && l.sightings >= min_sightings)
+        .map(|l| l.at)
+        .min_by(|a, b| (a - here).norm().total_cmp(&(b - here).norm()))
+}
+
 /// One search leg from `pose`: toward `lead` — where a sighting not yet
 /// confirmed put the target — to look again from closer (a detector finds a
 /// small, distant object in only a few frames; docs/perception.md), else
@@ -275,6 +343,9 @@ struct FindRun {
     watched: u32,
     /// Places (odom) of candidates another class outvoted.
     rejected: Vec<Vector2<f64>>,
+    /// Where an earlier step saw an object of this class ([`remembered`]),
+    /// until the exploration has driven toward it.
+    revisit: Option<Vector2<f64>>,
     /// Tracks started for this step (a new one after each rejection).
     tracks: u32,
     confirmed: bool,
@@ -405,6 +476,8 @@ enum ExploreGoalFor {
     NextTurn { turn: u32, leg: u32, origin: Pose2 },
     /// Search leg number `leg`.
     SearchLeg { leg: u32 },
+    /// The leg toward where an earlier step saw the target's class.
+    Revisit,
 }
 
 /// A stage outage: since when, how many failures, the latest one, and when to try again.
@@ -614,6 +687,8 @@ pub struct Mission {
     course: Option<f64>,
     metrics: MetricsAcc,
     replans: u32,
+    /// Objects seen during this mission's FIND steps.
+    landmarks: Vec<Landmark>,
     /// The question waiting for an answer, and the failure that caused it.
     awaiting: Option<(Question, String)>,
     outage: Option<Outage>,
@@ -637,6 +712,7 @@ impl Mission {
             course: None,
             metrics: MetricsAcc::default(),
             replans: 0,
+            landmarks: Vec::new(),
             awaiting: question.map(|q| {
                 let reason = q.reason.clone();
                 (q, reason)
@@ -821,6 +897,10 @@ impl Mission {
                 votes_against: 0,
                 watched: 0,
                 rejected: Vec::new(),
+                // An unnamed fixed target only: people walk away.
+                revisit: (step.action == Action::Find && step.person.is_empty())
+                    .then(|| remembered(&self.landmarks, step.class_id, self.index, p.confirm_frames, self.frame.pose))
+                    .flatten(),
                 tracks: 0,
                 confirmed: false,
                 goal: None,
@@ -835,6 +915,9 @@ impl Mission {
             })),
         };
         let index = self.index as u32;
+        if let StepRun::Find(f) = &run {
+            tracing::debug!(mission = %self.mission_id, step = index, revisit = ?f.revisit, landmarks = ?self.landmarks, "find starts");
+        }
         self.emit(Event::StepStarted { index, step, anchor });
         self.step = Some(Active { started: self.frame.stamp, progress: None, stuck_since: None, run });
         self.continue_step(p)
@@ -926,6 +1009,12 @@ impl Mission {
 
     /// This frame's boxes of the target's class: which one is the target.
     fn find_box(&mut self, p: &ExecutorParams, all: Vec<Detection>) -> Next {
+        if let Some(camera) = self.frame.camera.as_ref() {
+            let projector = Projector::new(camera);
+            let seen: Vec<(i32, Vector2<f64>)> =
+                all.iter().filter_map(|b| footprint(&self.frame, &projector, b).map(|at| (b.class_id, at))).collect();
+            remember_landmarks(&mut self.landmarks, seen, self.index);
+        }
         let Some(f) = self.find() else { return self.hold() };
         let (boxes, others): (Vec<Detection>, Vec<Detection>) = all.into_iter().partition(|b| b.class_id == f.class_id);
         let reference_places = f.reference.map(|class| places_of(&self.frame, &others, class)).unwrap_or_default();
@@ -1009,6 +1098,9 @@ impl Mission {
         }
         match observation {
             Some((b, identity, similarity, est)) => {
+                if f.votes_for == 0 && !f.confirmed {
+                    tracing::debug!(at = ?est.fused_target, class = b.class_id, score = b.score, "new candidate");
+                }
                 f.unseen = 0;
                 f.recent = (f.recent << 1 | 1) & window_mask(p.confirm_window);
                 f.votes_for += 1;
@@ -1028,6 +1120,7 @@ impl Mission {
                     && f.recent.count_ones() >= p.confirm_frames
                     && f.votes_for >= VOTE_MARGIN * f.votes_against
                 {
+                    tracing::debug!(target = ?f.fused, votes_for = f.votes_for, votes_against = f.votes_against, "target confirmed");
                     f.confirmed = true;
                     f.explore = Explore::Idle;
                     seen = Some(Event::TargetSeen {
@@ -1048,6 +1141,7 @@ impl Mission {
                     // Not seen again for a whole window: forget the
                     // candidate, keeping where it was (`fused`) as a lead
                     // for the search.
+                    tracing::debug!(lead = ?f.fused, votes_for = f.votes_for, votes_against = f.votes_against, "candidate not seen again: forgotten, kept as a lead");
                     f.new_track();
                 }
                 if f.moving && f.confirmed && f.last_seen.is_some_and(|t| stamp - t > p.follow_lost_s) {
@@ -1198,6 +1292,26 @@ impl Mission {
         let Some(f) = self.find_mut() else { return self.hold() };
         let state = std::mem::replace(&mut f.explore, Explore::Idle);
         match state {
+            Explore::Idle if f.revisit.is_some() => {
+                // An earlier step saw one where it is not seen from here (the
+                // landmark just reached may hide it): look again from closer
+                // before looking around. A place already within reach is
+                // looked for by the look-around instead.
+                let lead = f.revisit.take().map(|at| Vector3::new(at.x, at.y, 0.0));
+                let room = lead.as_ref().map_or(0.0, |t| (t.x - pose.x).hypot(t.y - pose.y) - f.d_s);
+                f.explore = Explore::Idle;
+                if room < LEAD_MIN_M {
+                    return self.explore(p);
+                }
+                let query = search_leg(pose, lead.as_ref(), f.d_s, p);
+                tracing::debug!(
+                    ?lead,
+                    f_dist = query.f_dist,
+                    yaw = query.yaw,
+                    "revisit leg toward a landmark an earlier step saw"
+                );
+                self.call(Pending::ExploreGoal(ExploreGoalFor::Revisit), Request::MoveGoal(query))
+            }
             Explore::Idle => {
                 // Look first where the target was last seen (a person who
                 // walked out of view went that way), then on round from there.
@@ -1222,6 +1336,7 @@ impl Mission {
                 }
                 ExplorePlan::Search(l) => {
                     let query = search_leg(pose, f.fused.as_ref(), f.d_s, p);
+                    tracing::debug!(leg = l, lead = ?f.fused, f_dist = query.f_dist, yaw = query.yaw, "search leg");
                     self.call(Pending::ExploreGoal(ExploreGoalFor::SearchLeg { leg: l }), Request::MoveGoal(query))
                 }
                 ExplorePlan::Ask => {
@@ -1258,6 +1373,11 @@ impl Mission {
             ExploreGoalFor::SearchLeg { leg } => {
                 self.emit(Event::Exploring { index, phase: ExplorePhase::Search, attempt: leg });
                 Explore::Search { goal, leg, since: stamp }
+            }
+            // Counted as leg 0: the look-around and the search legs follow as usual.
+            ExploreGoalFor::Revisit => {
+                self.emit(Event::Exploring { index, phase: ExplorePhase::Revisit, attempt: 1 });
+                Explore::Search { goal, leg: 0, since: stamp }
             }
         };
         if let Some(f) = self.find_mut() {

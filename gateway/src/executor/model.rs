@@ -177,6 +177,9 @@ pub enum ExplorePhase {
     Scan,
     /// A bounded forward search leg.
     Search,
+    /// A leg toward where an earlier step of the mission saw an object of
+    /// the target's class, to look again from closer.
+    Revisit,
 }
 
 /// What happened, in the order it happened, stamped with sensor time.
