@@ -83,7 +83,7 @@ async fn run(mut a: Actor, mut rx: mpsc::Receiver<Msg>) {
                         goal: r.goal,
                         cloud: &cloud,
                         max_speed: r.max_speed,
-                        view: View::pinhole(r.camera.width, r.camera.intrinsics.fx, r.camera.mount.yaw),
+                        view: View::of_camera(&r.camera),
                     },
                 );
                 let obstacle_cells = state.cloud.cells.len();

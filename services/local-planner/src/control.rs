@@ -70,7 +70,10 @@
 //!   the robot, which a turn in place must not forget: a robot that waits
 //!   beside a parked car while it searches must not forget the car) are kept in `odom` and
 //!   merged into the plan unless the current frame measured that place: a
-//!   remembered cell is forgotten only where it lies inside the view and the
+//!   remembered cell is forgotten only where it lies inside the view (for a
+//!   no-go marking on the floor: where the image shows that floor, beyond
+//!   `View::floor_from_m` — a cable just ahead lies below the image while the
+//!   depth along its bearing reaches past it) and the
 //!   frame's depth reached it along its bearing (`cloud::SeenRange`, within
 //!   `memory_seen_margin_m`), so an obstacle that moved away is forgotten
 //!   but one behind a stereo occlusion band — no depth left of a near edge,
@@ -232,23 +235,43 @@ pub struct StepInput<'a> {
     pub view: View,
 }
 
-/// The camera's horizontal view in `base_link`.
+/// The camera's view in `base_link`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct View {
     /// Direction of the optical axis, rad (the mount's yaw).
     pub yaw: f64,
     /// Half the horizontal field of view, rad (D455: about 43°).
     pub half_fov: f64,
+    /// Where the floor comes into view ahead, m along `base_link`'s x: the
+    /// ground under the image's bottom row (a D455 0.6 m up, level: 1.16 m
+    /// ahead of the base). Nearer floor is below the image. 0: everywhere.
+    pub floor_from_m: f64,
 }
 
 impl View {
-    /// The view of a pinhole camera `width` pixels wide with focal length `fx`.
+    /// The view of a pinhole camera `width` pixels wide with focal length
+    /// `fx`, seeing the floor everywhere in its angle.
     pub fn pinhole(width: u32, fx: f64, yaw: f64) -> Self {
-        Self { yaw, half_fov: (width as f64 / 2.0 / fx).atan() }
+        Self { yaw, half_fov: (width as f64 / 2.0 / fx).atan(), floor_from_m: 0.0 }
+    }
+
+    /// The view of `camera`, with where its image's bottom row meets the
+    /// floor (infinitely far when it never looks down to the floor).
+    pub fn of_camera(camera: &vlnav_geometry::camera::Camera) -> Self {
+        let projector = vlnav_geometry::camera::Projector::new(camera);
+        let bottom = f64::from(camera.height) - 0.5;
+        let floor_from_m = projector.ground_point(camera.intrinsics.cx, bottom).map_or(f64::INFINITY, |g| g.x.max(0.0));
+        Self { floor_from_m, ..Self::pinhole(camera.width, camera.intrinsics.fx, camera.mount.yaw) }
     }
 
     fn sees(&self, p: &Vector2<f64>, near: f64) -> bool {
         p.norm() >= near && wrap_angle(p.y.atan2(p.x) - self.yaw).abs() < self.half_fov
+    }
+
+    /// Whether the floor at `p` is in the image: in the view's angle, and
+    /// not so near that it lies below the bottom row.
+    fn sees_floor(&self, p: &Vector2<f64>, near: f64) -> bool {
+        self.sees(p, near) && p.x >= self.floor_from_m
     }
 }
 
@@ -477,7 +500,17 @@ impl RobotState {
                 return false;
             }
             let measured = cloud.seen.as_ref().is_none_or(|s| s.reaches(&b, p.memory_seen_margin_m));
-            if b.norm() > p.memory_range_m || (measured && input.view.sees(&b, p.memory_near_m)) {
+            // A marking on the floor (a no-go cell with nothing standing
+            // on it) is looked at only where the image shows that floor:
+            // depth along its bearing passes over it whether or not the
+            // camera sees it, and a cable the robot is about to cross lies
+            // below the image's bottom row.
+            let looked_at = if m.cell.no_go && m.cell.blocking < 2 {
+                input.view.sees_floor(&b, p.memory_near_m)
+            } else {
+                input.view.sees(&b, p.memory_near_m)
+            };
+            if b.norm() > p.memory_range_m || (measured && looked_at) {
                 return false;
             }
             cells.push(Cell { x: b.x as f32, y: b.y as f32, ..m.cell });
@@ -787,7 +820,7 @@ mod tests {
             },
             cloud,
             max_speed: 0.0,
-            view: View { yaw: 0.0, half_fov: 0.75 },
+            view: View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 },
         };
         state.merge_memory(cloud, &input, &p).cells.len()
     }
@@ -813,6 +846,83 @@ mod tests {
         let mut state = RobotState::default();
         remembered_after(&mut state, &seen_wall, 0.0);
         assert_eq!(remembered_after(&mut state, &ObstacleCloud::default(), 0.2), 0);
+    }
+
+    #[test]
+    fn a_floor_marking_below_the_image_is_remembered_until_the_image_shows_that_floor() {
+        let p = FollowParams::default();
+        // A cable 0.9 m ahead: inside the view's angle, and the depth along
+        // its bearing reaches 4 m (the floor and the walls beyond), but the
+        // floor shows in the image only from 1.16 m on.
+        let view = View { yaw: 0.0, half_fov: 0.75, floor_from_m: 1.16 };
+        let cable = Cell { x: 0.9, y: 0.1, blocking: 0, low: false, no_go: true };
+        let step = |state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View| {
+            let input = StepInput {
+                stamp,
+                pose: Pose2::new(0.0, 0.0, 0.0),
+                goal: GoalSpec {
+                    pose: Pose2::new(3.0, 0.0, 0.0),
+                    position_tolerance: 0.3,
+                    yaw_tolerance: 0.2,
+                    rotation_only: false,
+                },
+                cloud,
+                max_speed: 0.0,
+                view,
+            };
+            state.merge_memory(cloud, &input, &p).cells.iter().filter(|c| c.no_go).count()
+        };
+        let mut state = RobotState::default();
+        assert_eq!(step(&mut state, &ObstacleCloud { cells: vec![cable], ..frame(4.0, None) }, 0.0, view), 1);
+        assert_eq!(step(&mut state, &frame(4.0, None), 0.2, view), 1, "below the image: remembered");
+        // A camera that shows the floor there and no longer sees the cable: gone.
+        let low = View { floor_from_m: 0.5, ..view };
+        assert_eq!(step(&mut state, &frame(4.0, None), 0.4, low), 0);
+        // An obstacle there is forgotten as before: the depth measured past it.
+        let mut state = RobotState::default();
+        let post = Cell { blocking: 3, no_go: false, ..cable };
+        step(&mut state, &ObstacleCloud { cells: vec![post], ..frame(4.0, None) }, 0.0, view);
+        assert_eq!(
+            state
+                .merge_memory(
+                    &frame(4.0, None),
+                    &StepInput {
+                        stamp: 0.2,
+                        pose: Pose2::new(0.0, 0.0, 0.0),
+                        goal: GoalSpec {
+                            pose: Pose2::new(3.0, 0.0, 0.0),
+                            position_tolerance: 0.3,
+                            yaw_tolerance: 0.2,
+                            rotation_only: false
+                        },
+                        cloud: &frame(4.0, None),
+                        max_speed: 0.0,
+                        view,
+                    },
+                    &p
+                )
+                .cells
+                .len(),
+            0
+        );
+    }
+
+    #[test]
+    fn the_floor_comes_into_view_where_the_bottom_row_meets_it() {
+        use vlnav_geometry::camera::{Camera, Intrinsics, Mount};
+        // The simulated D455: 0.6 m up, 0.3 m ahead, level; 480 rows, fy 343.
+        let camera = Camera {
+            width: 640,
+            height: 480,
+            intrinsics: Intrinsics { fx: 343.159, fy: 343.159, cx: 320.5, cy: 240.5 },
+            mount: Mount { translation: nalgebra::Vector3::new(0.3, 0.0, 0.6), ..Mount::default() },
+            depth_min_m: 0.0,
+            depth_max_m: 10.0,
+        };
+        let view = View::of_camera(&camera);
+        let expected = 0.3 + 0.6 * 343.159 / (479.5 - 240.5);
+        assert!((view.floor_from_m - expected).abs() < 1e-6, "{view:?} vs {expected}");
+        assert!((view.half_fov - (320.0f64 / 343.159).atan()).abs() < 1e-12);
     }
 
     #[test]
@@ -897,7 +1007,7 @@ mod tests {
                     goal,
                     cloud: &cloud,
                     max_speed: 0.0,
-                    view: View { yaw: 0.0, half_fov: 0.75 },
+                    view: View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 },
                 };
                 state.merge_memory(&cloud, &input, &p);
                 let moving: Vec<Vector2<f64>> = state.memory.values().filter(|m| m.moving).map(|m| m.at).collect();
@@ -930,7 +1040,7 @@ mod tests {
                 goal,
                 cloud: &cloud,
                 max_speed: 0.0,
-                view: View { yaw: 0.0, half_fov: 0.75 },
+                view: View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 },
             };
             state.merge_memory(&cloud, &input, &p);
             seen_moving += usize::from(state.memory.values().any(|m| m.moving && m.stamp == t));
