@@ -81,6 +81,9 @@ impl NanoDet {
                 return Err(ModelError::Missing(p.clone()));
             }
         }
+        if device.is_cpu() {
+            crate::conv::keep_freed_memory();
+        }
         let invalid = |path: &Path, msg: String| ModelError::Invalid { path: path.to_path_buf(), msg };
         let text = std::fs::read_to_string(&files.graph).map_err(|e| invalid(&files.graph, e.to_string()))?;
         let def: GraphDef = serde_json::from_str(&text).map_err(|e| invalid(&files.graph, e.to_string()))?;

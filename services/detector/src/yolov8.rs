@@ -24,13 +24,15 @@
 //! `head`; inside C2f blocks `m.K` → `bottleneck.K`); see the README of this
 //! crate for both.
 
+use std::mem::MaybeUninit;
 use std::path::Path;
 
-use candle_core::{DType, Device, Module, Tensor};
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, DType, Device, Layout, Module, Shape, Tensor};
 use candle_nn::{Conv2dConfig, VarBuilder};
 use image::RgbImage;
+use rayon::prelude::*;
 
-use crate::conv::{Activation, FusedConv};
+use crate::conv::{Activation, FusedConv, cpu_input, written};
 use crate::detection::{DetectFilter, Detection, HeadLevel, HeadSpec, Letterbox, decode_dense, nms};
 use crate::nanodet::ModelError;
 use crate::preprocess::{InputSpec, letterbox_chw};
@@ -150,12 +152,59 @@ impl C2f {
     }
 
     fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
+        if xs.device().is_cpu() {
+            return xs.apply_op1_no_bwd(self);
+        }
         let mut ys = self.cv1.forward(xs)?.chunk(2, 1)?;
         for b in &self.bottlenecks {
             let next = b.forward(ys.last().expect("two chunks"))?;
             ys.push(next);
         }
         self.cv2.forward(&Tensor::cat(&ys, 1)?)
+    }
+}
+
+/// The whole block as one CPU operation, without a split, a concatenation or
+/// a separate residual add: per image, `cv1` writes both halves into the
+/// concatenation buffer, each bottleneck reads the last chunk there and writes
+/// the next one (its residual added in `cv2`'s epilogue), and `cv2` reads the
+/// buffer as it is.
+impl CustomOp1 for C2f {
+    fn name(&self) -> &'static str {
+        "yolov8-c2f"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let (b, c1, h, w) = layout.shape().dims4()?;
+        let x = cpu_input(storage, layout)?;
+        let hw = h * w;
+        let c = self.cv1.conv.out_channels() / 2;
+        let c2 = self.cv2.conv.out_channels();
+        // No buffer is zeroed: the kernels write every value before it is read.
+        let mut cat = Vec::with_capacity((2 + self.bottlenecks.len()) * c * hw);
+        let cat = &mut cat.spare_capacity_mut()[..(2 + self.bottlenecks.len()) * c * hw];
+        let mut tmp = Vec::with_capacity(c * hw);
+        let tmp = &mut tmp.spare_capacity_mut()[..c * hw];
+        let len = b * c2 * hw;
+        let mut out = Vec::with_capacity(len);
+        for (img, dst) in out.spare_capacity_mut()[..len].chunks_mut(c2 * hw).enumerate() {
+            self.cv1.conv.forward_image(&x[img * c1 * hw..(img + 1) * c1 * hw], h, w, &mut cat[..2 * c * hw], None)?;
+            for (i, bottleneck) in self.bottlenecks.iter().enumerate() {
+                let (done, next) = cat.split_at_mut((2 + i) * c * hw);
+                // SAFETY: chunks 0..2 + i are written (by cv1 and the bottlenecks before).
+                let input = unsafe { written(&done[(1 + i) * c * hw..]) };
+                bottleneck.cv1.conv.forward_image(input, h, w, tmp, None)?;
+                // SAFETY: written just above.
+                let mid = unsafe { written(tmp) };
+                let residual = bottleneck.residual.then_some(input);
+                bottleneck.cv2.conv.forward_image(mid, h, w, &mut next[..c * hw], residual)?;
+            }
+            // SAFETY: every chunk is written.
+            self.cv2.conv.forward_image(unsafe { written(cat) }, h, w, dst, None)?;
+        }
+        // SAFETY: cv2 wrote every value of every image.
+        unsafe { out.set_len(len) };
+        Ok((CpuStorage::F32(out), Shape::from((b, c2, h, w))))
     }
 }
 
@@ -185,12 +234,69 @@ impl Sppf {
             };
             pad(&pad(t, 2)?, 3)?.max_pool2d_with_stride(5, 1)
         };
+        if xs.device().is_cpu() {
+            return xs.apply_op1_no_bwd(self);
+        }
         let x = self.cv1.forward(xs)?;
         let y1 = pool(&x)?;
         let y2 = pool(&y1)?;
         let y3 = pool(&y2)?;
         self.cv2.forward(&Tensor::cat(&[&x, &y1, &y2, &y3], 1)?)
     }
+}
+
+/// The block as one CPU operation: `cv1` and the three pools write into the
+/// concatenation buffer that `cv2` reads.
+impl CustomOp1 for Sppf {
+    fn name(&self) -> &'static str {
+        "yolov8-sppf"
+    }
+
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let (b, c1, h, w) = layout.shape().dims4()?;
+        let x = cpu_input(storage, layout)?;
+        let hw = h * w;
+        let c = self.cv1.conv.out_channels();
+        let c2 = self.cv2.conv.out_channels();
+        let mut cat = Vec::with_capacity(4 * c * hw);
+        let cat = &mut cat.spare_capacity_mut()[..4 * c * hw];
+        let len = b * c2 * hw;
+        let mut out = Vec::with_capacity(len);
+        for (img, dst) in out.spare_capacity_mut()[..len].chunks_mut(c2 * hw).enumerate() {
+            self.cv1.conv.forward_image(&x[img * c1 * hw..(img + 1) * c1 * hw], h, w, &mut cat[..c * hw], None)?;
+            for i in 0..3 {
+                let (done, next) = cat.split_at_mut((i + 1) * c * hw);
+                // SAFETY: chunk i is written (by cv1 or the pool before).
+                max_pool5(unsafe { written(&done[i * c * hw..]) }, h, w, &mut next[..c * hw]);
+            }
+            // SAFETY: cv1 and the three pools wrote every chunk.
+            self.cv2.conv.forward_image(unsafe { written(cat) }, h, w, dst, None)?;
+        }
+        // SAFETY: cv2 wrote every value of every image.
+        unsafe { out.set_len(len) };
+        Ok((CpuStorage::F32(out), Shape::from((b, c2, h, w))))
+    }
+}
+
+/// 5×5 max pooling with stride 1 over `[c][h][w]` planes, the border padded
+/// with −∞ (PyTorch's `MaxPool2d(5, 1, 2)`): row maxima, then column maxima.
+fn max_pool5(x: &[f32], h: usize, w: usize, out: &mut [MaybeUninit<f32>]) {
+    x.par_chunks(h * w).zip(out.par_chunks_mut(h * w)).for_each(|(src, dst)| {
+        let mut rows = vec![f32::NEG_INFINITY; h * w];
+        for y in 0..h {
+            for x0 in 0..w {
+                let window = &src[y * w + x0.saturating_sub(2)..y * w + (x0 + 3).min(w)];
+                rows[y * w + x0] = window.iter().fold(f32::NEG_INFINITY, |m, v| m.max(*v));
+            }
+        }
+        for y in 0..h {
+            for x0 in 0..w {
+                dst[y * w + x0].write(
+                    (y.saturating_sub(2)..(y + 3).min(h)).fold(f32::NEG_INFINITY, |m, yy| m.max(rows[yy * w + x0])),
+                );
+            }
+        }
+    });
 }
 
 struct Backbone {
@@ -248,9 +354,61 @@ struct Neck {
     n6: C2f,
 }
 
-fn upsample2(xs: &Tensor) -> candle_core::Result<Tensor> {
-    let (_, _, h, w) = xs.dims4()?;
-    xs.upsample_nearest2d(2 * h, 2 * w)
+/// `cat([upsample×2(small), large], 1)`, nearest-neighbour upsampling.
+fn upsample_cat(small: &Tensor, large: &Tensor) -> candle_core::Result<Tensor> {
+    if small.device().is_cpu() {
+        return small.apply_op2_no_bwd(large, &UpsampleCat);
+    }
+    let (_, _, h, w) = small.dims4()?;
+    Tensor::cat(&[&small.upsample_nearest2d(2 * h, 2 * w)?, large], 1)
+}
+
+/// [`upsample_cat`] as one CPU pass over the output, without the upsampled
+/// intermediate.
+struct UpsampleCat;
+
+impl CustomOp2 for UpsampleCat {
+    fn name(&self) -> &'static str {
+        "yolov8-upsample-cat"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let (b, ca, h, w) = l1.shape().dims4()?;
+        let (b2, cb, h2, w2) = l2.shape().dims4()?;
+        if (b2, h2, w2) != (b, 2 * h, 2 * w) {
+            candle_core::bail!("upsample-cat: {:?} upsampled does not match {:?}", l1.dims(), l2.dims());
+        }
+        let (small, large) = (cpu_input(s1, l1)?, cpu_input(s2, l2)?);
+        let plane = h2 * w2;
+        let len = b * (ca + cb) * plane;
+        let mut out = Vec::with_capacity(len);
+        out.spare_capacity_mut()[..len].par_chunks_mut(plane).enumerate().for_each(|(i, dst)| {
+            let (img, ch) = (i / (ca + cb), i % (ca + cb));
+            if ch < ca {
+                let src = &small[(img * ca + ch) * h * w..][..h * w];
+                for (y, row) in dst.chunks_mut(w2).enumerate() {
+                    let src_row = &src[y / 2 * w..][..w];
+                    for (x, d) in row.iter_mut().enumerate() {
+                        d.write(src_row[x / 2]);
+                    }
+                }
+            } else {
+                let src = &large[(img * cb + ch - ca) * plane..][..plane];
+                for (d, s) in dst.iter_mut().zip(src) {
+                    d.write(*s);
+                }
+            }
+        });
+        // SAFETY: every plane of every image was written above.
+        unsafe { out.set_len(len) };
+        Ok((CpuStorage::F32(out), Shape::from((b, ca + cb, h2, w2))))
+    }
 }
 
 impl Neck {
@@ -268,38 +426,52 @@ impl Neck {
     }
 
     fn forward(&self, p3: &Tensor, p4: &Tensor, p5: &Tensor) -> candle_core::Result<[Tensor; 3]> {
-        let x = self.n1.forward(&Tensor::cat(&[&upsample2(p5)?, p4], 1)?)?;
-        let h1 = self.n2.forward(&Tensor::cat(&[&upsample2(&x)?, p3], 1)?)?;
+        let x = self.n1.forward(&upsample_cat(p5, p4)?)?;
+        let h1 = self.n2.forward(&upsample_cat(&x, p3)?)?;
         let h2 = self.n4.forward(&Tensor::cat(&[&self.n3.forward(&h1)?, &x], 1)?)?;
         let h3 = self.n6.forward(&Tensor::cat(&[&self.n5.forward(&h2)?, p5], 1)?)?;
         Ok([h1, h2, h3])
     }
 }
 
+/// A head branch after its first convolution (which [`Head`] runs for both
+/// branches of a level at once).
 struct Branch {
-    b0: ConvBlock,
     b1: ConvBlock,
     out: FusedConv,
 }
 
 impl Branch {
-    fn load(vb: VarBuilder, norm: Norm, c_in: usize, c_mid: usize, c_out: usize) -> candle_core::Result<Self> {
-        Ok(Self {
-            b0: ConvBlock::load(vb.pp("0"), norm, c_in, c_mid, 3, 1)?,
+    /// The branch and its first convolution.
+    fn load(
+        vb: VarBuilder,
+        norm: Norm,
+        c_in: usize,
+        c_mid: usize,
+        c_out: usize,
+    ) -> candle_core::Result<(FusedConv, Self)> {
+        let b0 = ConvBlock::load(vb.pp("0"), norm, c_in, c_mid, 3, 1)?.conv;
+        let branch = Self {
             b1: ConvBlock::load(vb.pp("1"), norm, c_mid, c_mid, 3, 1)?,
             out: {
                 let conv = candle_nn::conv2d(c_mid, c_out, 1, Default::default(), vb.pp("2"))?;
                 FusedConv::new(conv.weight(), conv.bias(), 1, 0, Activation::Identity)?
             },
-        })
+        };
+        Ok((b0, branch))
     }
 
     fn forward(&self, xs: &Tensor) -> candle_core::Result<Tensor> {
-        self.out.forward(&self.b1.forward(&self.b0.forward(xs)?)?)
+        self.out.forward(&self.b1.forward(xs)?)
     }
 }
 
 struct Head {
+    /// Per level, the first convolutions of the box and the class branch as
+    /// one (they read the same features): `c_box` box channels, then the class
+    /// branch's.
+    first: [FusedConv; 3],
+    c_box: usize,
     boxes: [Branch; 3],
     classes: [Branch; 3],
 }
@@ -312,17 +484,22 @@ impl Head {
         let c_box = (filters[0] / 4).max(4 * REG_BINS);
         // The DFL projection is the fixed arange(16) and is applied in decoding; it must still be there.
         candle_nn::conv2d_no_bias(REG_BINS, 1, 1, Default::default(), vb.pp("dfl.conv"))?;
-        let branch = |name: &str, i: usize, mid: usize, out: usize| {
-            Branch::load(vb.pp(format!("{name}.{i}")), norm, filters[i], mid, out)
+        let level = |i: usize| -> candle_core::Result<(FusedConv, Branch, Branch)> {
+            let (box0, boxes) = Branch::load(vb.pp(format!("cv2.{i}")), norm, filters[i], c_box, 4 * REG_BINS)?;
+            let (cls0, classes) = Branch::load(vb.pp(format!("cv3.{i}")), norm, filters[i], c_cls, nc)?;
+            Ok((FusedConv::stacked(&[&box0, &cls0])?, boxes, classes))
         };
-        Ok(Self {
-            boxes: [
-                branch("cv2", 0, c_box, 4 * REG_BINS)?,
-                branch("cv2", 1, c_box, 4 * REG_BINS)?,
-                branch("cv2", 2, c_box, 4 * REG_BINS)?,
-            ],
-            classes: [branch("cv3", 0, c_cls, nc)?, branch("cv3", 1, c_cls, nc)?, branch("cv3", 2, c_cls, nc)?],
-        })
+        let [(f0, b0, c0), (f1, b1, c1), (f2, b2, c2)] = [level(0)?, level(1)?, level(2)?];
+        Ok(Self { first: [f0, f1, f2], c_box, boxes: [b0, b1, b2], classes: [c0, c1, c2] })
+    }
+
+    /// Level `i`'s box logits and class logits, `[b, 64, h, w]` and `[b, classes, h, w]`.
+    fn forward(&self, i: usize, xs: &Tensor) -> candle_core::Result<(Tensor, Tensor)> {
+        let both = self.first[i].forward(xs)?;
+        let c = both.dim(1)?;
+        let boxes = self.boxes[i].forward(&both.narrow(1, 0, self.c_box)?.contiguous()?)?;
+        let classes = self.classes[i].forward(&both.narrow(1, self.c_box, c - self.c_box)?.contiguous()?)?;
+        Ok((boxes, classes))
     }
 }
 
@@ -405,6 +582,9 @@ impl YoloV8 {
             }
             _ => found.size,
         };
+        if device.is_cpu() {
+            crate::conv::keep_freed_memory();
+        }
         // SAFETY: the file is memory-mapped read-only and not modified while the model lives.
         let vb = unsafe { VarBuilder::from_mmaped_safetensors(&[weights], DType::F32, device) }
             .map_err(|e| ModelError::Invalid { path: weights.to_path_buf(), msg: e.to_string() })?;
@@ -456,9 +636,9 @@ impl YoloV8 {
         let mut out = Vec::with_capacity(3);
         for (i, f) in feats.iter().enumerate() {
             let (b, _, h, w) = f.dims4()?;
-            let boxes =
-                self.head.boxes[i].forward(f)?.reshape((b, 4 * REG_BINS, h * w))?.transpose(1, 2)?.contiguous()?;
-            let cls = self.head.classes[i].forward(f)?.reshape((b, self.num_classes, h * w))?.transpose(1, 2)?;
+            let (boxes, cls) = self.head.forward(i, f)?;
+            let boxes = boxes.reshape((b, 4 * REG_BINS, h * w))?.transpose(1, 2)?.contiguous()?;
+            let cls = cls.reshape((b, self.num_classes, h * w))?.transpose(1, 2)?;
             let scores = candle_nn::ops::sigmoid(&cls.contiguous()?)?;
             out.push(LevelOutput { stride: STRIDES[i], width: w, height: h, scores, box_logits: boxes });
         }
