@@ -3,7 +3,9 @@
 #   make test   — install what the tests use (Debian packages, models, tools, llama-server) once, then run every test tier
 # and the checks CI runs before the tests:
 #   make lint   — rustfmt and clippy, warnings as errors
-.PHONY: demo test lint system models tools llama-server
+# and the container images, built here with podman (no registry needed):
+#   make images — vlnav:0.1.0 and vlnav-models:0.1.0 (deploy/README.md)
+.PHONY: demo test lint system models tools llama-server images
 
 system:
 	deploy/setup-system.sh
@@ -24,6 +26,17 @@ llama-server:
 demo: export VLNAV_CARGO_PROFILE = release
 demo: models
 	cargo run --release -p vlnav -- demo
+
+# The release binaries built on this machine, stripped, and ./models, on a
+# Debian base made with debootstrap once per machine (deploy/build-images.sh).
+images: export VLNAV_CARGO_PROFILE = release
+images: models
+	cargo build --release --locked $(addprefix -p ,$(IMAGE_PACKAGES)) $(addprefix --bin ,$(IMAGE_BINARIES))
+	deploy/build-images.sh --profile release
+
+IMAGE_BINARIES = vlnav vlnav-gateway vlnav-ingress vlnav-planner vlnav-detector vlnav-reid vlnav-segmenter \
+	vlnav-subgoal vlnav-local-planner vlnav-edge
+IMAGE_PACKAGES = $(filter-out vlnav-edge,$(IMAGE_BINARIES)) vlnav-edge-agent
 
 test: system models tools llama-server
 	cargo test --workspace --no-fail-fast
