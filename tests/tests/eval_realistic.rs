@@ -21,13 +21,17 @@ use vlnav_eval::metrics::Mode;
 /// many sightings as frames of another class, counted over the whole look,
 /// and ignores sightings far from the candidate, it reaches the motorcycle
 /// (and crossing trial 0 and garage trial 0 stop 1 cm nearer).
+/// Crossing trial 1 stops 1 cm farther and symmetric trial 0 1 cm nearer
+/// since the footprint guard and the goal shift keep the body out of no-go
+/// cells too, and a no-go marking on the floor is remembered until the
+/// image shows that floor (services/local-planner/src/control.rs).
 const PINNED: &str = "crossing 0 succeeded true true +0.04 0 0\n\
-crossing 1 succeeded true true +0.01 0 0\n\
+crossing 1 succeeded true true +0.02 0 0\n\
 garage 0 succeeded true true +0.02 0 0\n\
 garage 1 succeeded true true +0.03 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\
 precise 1 succeeded true true +0.03 0 0\n\
-symmetric 0 succeeded true true +0.07 0 0\n\
+symmetric 0 succeeded true true +0.06 0 0\n\
 symmetric 1 succeeded true true +0.07 0 0";
 
 fn args(out: &std::path::Path) -> vlnav_eval::EvalArgs {
