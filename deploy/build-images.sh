@@ -203,7 +203,8 @@ fi
 # ---- smoke: each image starts as its non-root user on a read-only root --------------
 user=$(podman image inspect --format '{{.Config.User}}' "vlnav:$tag")
 [ "$user" = "65532:65532" ] || { echo "vlnav:$tag runs as '$user', not 65532:65532" >&2; exit 1; }
-podman run --rm --read-only --network none "vlnav:$tag" vlnav-gateway --help >/dev/null
+podman run --rm --read-only --network none "vlnav:$tag" --help >/dev/null
+podman run --rm --read-only --network none --entrypoint vlnav-gateway "vlnav:$tag" --help >/dev/null
 uid=$(podman run --rm --read-only --network none "vlnav-models:$tag" id -u)
 [ "$uid" = 65532 ] || { echo "vlnav-models:$tag runs as uid $uid" >&2; exit 1; }
 podman run --rm --read-only --network none "vlnav-models:$tag" test -s /models/minilm/model.safetensors

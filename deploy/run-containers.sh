@@ -152,7 +152,7 @@ credentials() {
   for n in "${extra[@]}"; do [ -n "$n" ] && names+=(--gateway-name "$n"); done
   [ "$gw_address" != 127.0.0.1 ] && [ "$gw_address" != 0.0.0.0 ] && names+=(--gateway-name "$gw_address")
   podman run --rm --read-only --network none --user 65532:65532 -v "$creds:/out" "$image" \
-    vlnav credentials k8s --out /out --robot "$robot" "${names[@]}" >/dev/null 2>&1 ||
+    credentials k8s --out /out --robot "$robot" "${names[@]}" >/dev/null 2>&1 ||
     die "vlnav credentials k8s failed in $image"
 }
 
@@ -191,7 +191,7 @@ run_service() {
       ;;
     reid) FLAGS+=(-v "$project-reid:/var/lib/vlnav/reid:U") ;;
   esac
-  podman run -d "${FLAGS[@]}" "$image" "/usr/local/bin/vlnav-$svc" >/dev/null
+  podman run -d "${FLAGS[@]}" --entrypoint "/usr/local/bin/vlnav-$svc" "$image" >/dev/null
 }
 
 run_edge() {
@@ -204,7 +204,7 @@ run_edge() {
   while IFS= read -r kv; do
     case "$kv" in VLNAV_EDGE_GATEWAY=* | VLNAV_EDGE_ROBOT_ID=* | VLNAV_EDGE_DRIVER=*) ;; *) FLAGS+=(-e "$kv") ;; esac
   done < <(env | grep '^VLNAV_EDGE_' || true)
-  podman run -d "${FLAGS[@]}" "$image" /usr/local/bin/vlnav-edge >/dev/null
+  podman run -d "${FLAGS[@]}" --entrypoint /usr/local/bin/vlnav-edge "$image" >/dev/null
 }
 
 # Waits until the gateway lists the robot as connected.

@@ -65,9 +65,26 @@ pub fn target_dir() -> PathBuf {
     if deps.file_name().is_some_and(|n| n == "deps") { deps.parent().unwrap_or(deps) } else { deps }.to_path_buf()
 }
 
-/// Builds the servers' binaries once per test process (cargo does nothing
-/// when they are up to date) and returns the directory they are in. Set
-/// `VLNAV_BIN_DIR` to use binaries built elsewhere instead.
+/// Every binary a deployment runs, as (package, binary): the images hold
+/// them all (`deploy/build-images.sh`). Built together, so the process and
+/// container tiers share one build (cargo unifies features per build: the
+/// servers alone would compile their dependencies a second time).
+pub const DEPLOYED: [(&str, &str); 10] = [
+    ("vlnav", "vlnav"),
+    ("vlnav-gateway", "vlnav-gateway"),
+    ("vlnav-ingress", "vlnav-ingress"),
+    ("vlnav-planner", "vlnav-planner"),
+    ("vlnav-detector", "vlnav-detector"),
+    ("vlnav-reid", "vlnav-reid"),
+    ("vlnav-segmenter", "vlnav-segmenter"),
+    ("vlnav-subgoal", "vlnav-subgoal"),
+    ("vlnav-local-planner", "vlnav-local-planner"),
+    ("vlnav-edge-agent", "vlnav-edge"),
+];
+
+/// Builds the deployment's binaries ([`DEPLOYED`]) once per test process
+/// (cargo does nothing when they are up to date) and returns the directory
+/// they are in. Set `VLNAV_BIN_DIR` to use binaries built elsewhere instead.
 pub fn binaries() -> anyhow::Result<PathBuf> {
     static BUILT: OnceLock<Result<PathBuf, String>> = OnceLock::new();
     BUILT
@@ -89,9 +106,8 @@ pub fn binaries() -> anyhow::Result<PathBuf> {
                     cmd.args(["--profile", other]);
                 }
             }
-            for name in STAGES.iter().chain([&GATEWAY]) {
-                let bin = binary_name(name);
-                cmd.args(["-p", &bin, "--bin", &bin]);
+            for (package, bin) in DEPLOYED {
+                cmd.args(["-p", package, "--bin", bin]);
             }
             let out = cmd.output().map_err(|e| format!("cannot run cargo: {e}"))?;
             if !out.status.success() {

@@ -27,20 +27,6 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 use vlnav_e2e::{CASE_2, json_objects, procs, repo_root, tool, use_repo_models};
 
-/// Every binary the vlnav image carries: (package, binary).
-const BINARIES: [(&str, &str); 10] = [
-    ("vlnav", "vlnav"),
-    ("vlnav-gateway", "vlnav-gateway"),
-    ("vlnav-ingress", "vlnav-ingress"),
-    ("vlnav-planner", "vlnav-planner"),
-    ("vlnav-detector", "vlnav-detector"),
-    ("vlnav-reid", "vlnav-reid"),
-    ("vlnav-segmenter", "vlnav-segmenter"),
-    ("vlnav-subgoal", "vlnav-subgoal"),
-    ("vlnav-local-planner", "vlnav-local-planner"),
-    ("vlnav-edge-agent", "vlnav-edge"),
-];
-
 /// Names of this test's containers, network and volumes (not a user's `vlnav` set).
 const PROJECT: &str = "vlnav-e2e";
 /// The network's /24, apart from run-containers.sh's default.
@@ -91,30 +77,6 @@ fn script(name: &str, args: &[&str], env: &[(&str, String)]) {
         .status()
         .unwrap_or_else(|e| panic!("cannot run deploy/{name}: {e}"));
     assert!(status.success(), "deploy/{name} {args:?} failed ({status})");
-}
-
-/// The release or debug binaries of this test's profile, built if needed
-/// (cargo does nothing when they are up to date).
-fn build_binaries() -> PathBuf {
-    let dir = procs::target_dir();
-    let profile = dir.file_name().and_then(|n| n.to_str()).unwrap_or("debug").to_string();
-    let mut cmd = Command::new(std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into()));
-    cmd.current_dir(repo_root()).arg("build");
-    match profile.as_str() {
-        "debug" => {}
-        "release" => {
-            cmd.arg("--release");
-        }
-        other => {
-            cmd.args(["--profile", other]);
-        }
-    }
-    for (package, bin) in BINARIES {
-        cmd.args(["-p", package, "--bin", bin]);
-    }
-    let status = cmd.status().expect("cargo runs");
-    assert!(status.success(), "building the binaries failed");
-    dir
 }
 
 /// The set started by run-containers.sh; taken down when dropped.
@@ -324,7 +286,7 @@ fn the_stack_in_containers_runs_case_2_and_rides_out_a_killed_stage() {
 
     // 1. Images from this build's binaries.
     let t = Instant::now();
-    let bin_dir = build_binaries();
+    let bin_dir = procs::binaries().expect("the deployment's binaries build");
     let cargo_s = t.elapsed().as_secs_f64();
     let profile = bin_dir.file_name().and_then(|n| n.to_str()).unwrap_or("debug").to_string();
     let tag = format!("0.1.0-{profile}");
@@ -334,7 +296,19 @@ fn the_stack_in_containers_runs_case_2_and_rides_out_a_killed_stage() {
     let build_s = t.elapsed().as_secs_f64();
     let image = format!("vlnav:{tag}");
     assert_eq!(podman_ok(&["image", "inspect", "--format", "{{.Config.User}}", &image]), "65532:65532");
-    let help = podman_ok(&["run", "--rm", "--read-only", "--network", "none", &image, "vlnav-gateway", "--help"]);
+    let help = podman_ok(&["run", "--rm", "--read-only", "--network", "none", &image, "--help"]);
+    assert!(help.contains("Usage: vlnav"), "--help in the image is vlnav's:\n{help}");
+    let help = podman_ok(&[
+        "run",
+        "--rm",
+        "--read-only",
+        "--network",
+        "none",
+        "--entrypoint",
+        "vlnav-gateway",
+        &image,
+        "--help",
+    ]);
     assert!(help.contains("--listen"), "vlnav-gateway --help in the image:\n{help}");
 
     // 2. The stack, one container per Deployment.
