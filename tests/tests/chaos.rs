@@ -13,9 +13,11 @@
 //!    (2 s per chunk) or blackholed, then healed;
 //! 5. `stage-freeze`: a stage server is frozen with SIGSTOP (it keeps its
 //!    connections and answers nothing, not even HTTP/2 pings, like a stuck
-//!    handler) for longer than a stage may stay down, then let go (SIGCONT).
-//!    The gateway runs with a 2 s `--stage-timeout-s`; the mission must fail
-//!    naming the stage before the stage is let go, not hang on the call.
+//!    handler) and let go (SIGCONT) once the mission has ended. The gateway
+//!    runs with a 2 s `--stage-timeout-s`; the mission must fail naming the
+//!    stage within 20–25 s, while the stage is still frozen: keepalive
+//!    alone would end the first call only after 20 s, and the mission 10 s
+//!    of robot time after that.
 //!
 //! Every run asserts:
 //! - (a) the robot is commanded zero no later than `deadman_timeout_s` + one
@@ -79,7 +81,7 @@ enum Fault {
     /// Delay (by `delay`) or blackhole (`delay` = None) the gateway's link to
     /// `stage` for `lasting`, then heal it.
     StageLink { stage: &'static str, delay: Option<Duration>, lasting: Duration },
-    /// SIGSTOP `stage` for `lasting`, then SIGCONT.
+    /// SIGSTOP `stage` until its mission has ended (at most `lasting`), then SIGCONT.
     FreezeStage { stage: &'static str, lasting: Duration },
 }
 
