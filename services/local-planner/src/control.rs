@@ -807,7 +807,8 @@ mod tests {
         ObstacleCloud { seen: Some(seen), ..ObstacleCloud::default() }
     }
 
-    fn remembered_after(state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64) -> usize {
+    /// The cells planned with after merging `cloud` into the memory, seen with `view`.
+    fn merged_in_view(state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View) -> Vec<Cell> {
         let p = FollowParams::default();
         let input = StepInput {
             stamp,
@@ -820,9 +821,13 @@ mod tests {
             },
             cloud,
             max_speed: 0.0,
-            view: View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 },
+            view,
         };
-        state.merge_memory(cloud, &input, &p).cells.len()
+        state.merge_memory(cloud, &input, &p).cells
+    }
+
+    fn remembered_after(state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64) -> usize {
+        merged_in_view(state, cloud, stamp, View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 }).len()
     }
 
     #[test]
@@ -850,61 +855,25 @@ mod tests {
 
     #[test]
     fn a_floor_marking_below_the_image_is_remembered_until_the_image_shows_that_floor() {
-        let p = FollowParams::default();
         // A cable 0.9 m ahead: inside the view's angle, and the depth along
         // its bearing reaches 4 m (the floor and the walls beyond), but the
         // floor shows in the image only from 1.16 m on.
         let view = View { yaw: 0.0, half_fov: 0.75, floor_from_m: 1.16 };
         let cable = Cell { x: 0.9, y: 0.1, blocking: 0, low: false, no_go: true };
-        let step = |state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View| {
-            let input = StepInput {
-                stamp,
-                pose: Pose2::new(0.0, 0.0, 0.0),
-                goal: GoalSpec {
-                    pose: Pose2::new(3.0, 0.0, 0.0),
-                    position_tolerance: 0.3,
-                    yaw_tolerance: 0.2,
-                    rotation_only: false,
-                },
-                cloud,
-                max_speed: 0.0,
-                view,
-            };
-            state.merge_memory(cloud, &input, &p).cells.iter().filter(|c| c.no_go).count()
+        let remembered = |state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View| {
+            merged_in_view(state, cloud, stamp, view).len()
         };
         let mut state = RobotState::default();
-        assert_eq!(step(&mut state, &ObstacleCloud { cells: vec![cable], ..frame(4.0, None) }, 0.0, view), 1);
-        assert_eq!(step(&mut state, &frame(4.0, None), 0.2, view), 1, "below the image: remembered");
+        assert_eq!(remembered(&mut state, &ObstacleCloud { cells: vec![cable], ..frame(4.0, None) }, 0.0, view), 1);
+        assert_eq!(remembered(&mut state, &frame(4.0, None), 0.2, view), 1, "below the image: remembered");
         // A camera that shows the floor there and no longer sees the cable: gone.
         let low = View { floor_from_m: 0.5, ..view };
-        assert_eq!(step(&mut state, &frame(4.0, None), 0.4, low), 0);
+        assert_eq!(remembered(&mut state, &frame(4.0, None), 0.4, low), 0);
         // An obstacle there is forgotten as before: the depth measured past it.
         let mut state = RobotState::default();
         let post = Cell { blocking: 3, no_go: false, ..cable };
-        step(&mut state, &ObstacleCloud { cells: vec![post], ..frame(4.0, None) }, 0.0, view);
-        assert_eq!(
-            state
-                .merge_memory(
-                    &frame(4.0, None),
-                    &StepInput {
-                        stamp: 0.2,
-                        pose: Pose2::new(0.0, 0.0, 0.0),
-                        goal: GoalSpec {
-                            pose: Pose2::new(3.0, 0.0, 0.0),
-                            position_tolerance: 0.3,
-                            yaw_tolerance: 0.2,
-                            rotation_only: false
-                        },
-                        cloud: &frame(4.0, None),
-                        max_speed: 0.0,
-                        view,
-                    },
-                    &p
-                )
-                .cells
-                .len(),
-            0
-        );
+        remembered(&mut state, &ObstacleCloud { cells: vec![post], ..frame(4.0, None) }, 0.0, view);
+        assert_eq!(remembered(&mut state, &frame(4.0, None), 0.2, view), 0);
     }
 
     #[test]
