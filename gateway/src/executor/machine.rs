@@ -597,11 +597,12 @@ fn footprint(frame: &Frame, projector: &Projector, b: &Detection) -> Option<Vect
     projector.ground_point(u, b.y_max as f64).map(|g| frame.pose.transform(&g.xy()))
 }
 
-/// Where this frame's boxes of class `class` stand (odom footprints).
-fn places_of(frame: &Frame, boxes: &[Detection], class: i32) -> Vec<Vector2<f64>> {
+/// Where this frame's boxes stand, with their class (odom footprints; none
+/// without a camera model, or for a box whose bottom is not below the horizon).
+fn places_of(frame: &Frame, boxes: &[Detection]) -> Vec<(i32, Vector2<f64>)> {
     let Some(camera) = frame.camera.as_ref() else { return Vec::new() };
     let projector = Projector::new(camera);
-    boxes.iter().filter(|b| b.class_id == class).filter_map(|b| footprint(frame, &projector, b)).collect()
+    boxes.iter().filter_map(|b| footprint(frame, &projector, b).map(|at| (b.class_id, at))).collect()
 }
 
 /// The index of the box whose centre is nearest `(cx, cy)`, the instance
@@ -1009,15 +1010,16 @@ impl Mission {
 
     /// This frame's boxes of the target's class: which one is the target.
     fn find_box(&mut self, p: &ExecutorParams, all: Vec<Detection>) -> Next {
-        if let Some(camera) = self.frame.camera.as_ref() {
-            let projector = Projector::new(camera);
-            let seen: Vec<(i32, Vector2<f64>)> =
-                all.iter().filter_map(|b| footprint(&self.frame, &projector, b).map(|at| (b.class_id, at))).collect();
-            remember_landmarks(&mut self.landmarks, seen, self.index);
-        }
+        let places = places_of(&self.frame, &all);
+        remember_landmarks(&mut self.landmarks, places.iter().copied(), self.index);
         let Some(f) = self.find() else { return self.hold() };
         let (boxes, others): (Vec<Detection>, Vec<Detection>) = all.into_iter().partition(|b| b.class_id == f.class_id);
-        let reference_places = f.reference.map(|class| places_of(&self.frame, &others, class)).unwrap_or_default();
+        let reference_places: Vec<Vector2<f64>> = match f.reference {
+            Some(class) if class != f.class_id => {
+                places.iter().filter(|(c, _)| *c == class).map(|(_, at)| *at).collect()
+            }
+            _ => Vec::new(),
+        };
         // The class vote: does another class's box (and none of the
         // target's) stand where the unconfirmed candidate projects?
         let rival = f.under_vote()
