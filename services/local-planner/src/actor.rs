@@ -55,6 +55,8 @@ struct Actor {
 /// Spawns the planner actor and returns its mailbox.
 pub fn spawn(planner: Arc<Planner>, follow: FollowParams, cloud: CloudParams) -> Mailbox<Msg> {
     let (mailbox, rx) = Mailbox::channel("local-planner", 64);
+    // A remembered cell's height is read in the cloud's own voxels.
+    let follow = FollowParams { obstacle_height_m: cloud.obstacle_height, voxel_m: cloud.voxel, ..follow };
     let actor = Actor { planner, follow, builder: CloudBuilder::new(cloud), robots: HashMap::new() };
     tokio::spawn(run(actor, rx));
     mailbox

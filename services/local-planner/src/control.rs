@@ -70,10 +70,12 @@
 //!   the robot, which a turn in place must not forget: a robot that waits
 //!   beside a parked car while it searches must not forget the car) are kept in `odom` and
 //!   merged into the plan unless the current frame measured that place: a
-//!   remembered cell is forgotten only where it lies inside the view (for a
-//!   no-go marking on the floor: where the image shows that floor, beyond
-//!   `View::floor_from_m` — a cable just ahead lies below the image while the
-//!   depth along its bearing reaches past it) and the
+//!   remembered cell is forgotten only where it lies inside the view with
+//!   its top in the image (for a no-go marking on the floor: where the image
+//!   shows that floor, beyond `View::floor_from_m` — a cable just ahead lies
+//!   below the image while the depth along its bearing reaches past it; for
+//!   an obstacle lower than the camera: beyond `View::top_from` its height —
+//!   a water bottle 0.75 m ahead is below the image too) and the
 //!   frame's depth reached it along its bearing (`cloud::SeenRange`, within
 //!   `memory_seen_margin_m`), so an obstacle that moved away is forgotten
 //!   but one behind a stereo occlusion band — no depth left of a near edge,
@@ -161,6 +163,11 @@ pub struct FollowParams {
     pub moving_lookback_s: f64,
     pub moving_cluster_m: f64,
     pub moving_memory_s: f64,
+    /// The obstacle cloud's `obstacle_height` and `voxel` (`CloudParams`;
+    /// `actor::spawn` copies them): a cell's height above the floor is at
+    /// least `obstacle_height_m + blocking · voxel_m`, m.
+    pub obstacle_height_m: f64,
+    pub voxel_m: f64,
     /// Radius of the disc a turn in place sweeps (half-diagonal + margin), m.
     pub sweep_radius_m: f64,
     /// Half the robot's length and width, m (Husky A200: 0.99 m × 0.67 m).
@@ -172,6 +179,14 @@ pub struct FollowParams {
     pub guard_margin_m: f64,
     /// Largest sideways move of a goal whose footprint holds an obstacle, m.
     pub goal_shift_max_m: f64,
+}
+
+impl FollowParams {
+    /// How high a cell stands at least, above the floor, m: its voxels
+    /// above `obstacle_height_m` counted (`Cell::blocking`).
+    fn top_of(&self, cell: &Cell) -> f64 {
+        self.obstacle_height_m + f64::from(cell.blocking) * self.voxel_m
+    }
 }
 
 impl Default for FollowParams {
@@ -203,6 +218,8 @@ impl Default for FollowParams {
             moving_lookback_s: 0.25,
             moving_cluster_m: 0.3,
             moving_memory_s: 1.5,
+            obstacle_height_m: 0.15,
+            voxel_m: 0.05,
             sweep_radius_m: 0.65,
             half_length_m: 0.495,
             half_width_m: 0.335,
@@ -246,13 +263,19 @@ pub struct View {
     /// ground under the image's bottom row (a D455 0.6 m up, level: 1.16 m
     /// ahead of the base). Nearer floor is below the image. 0: everywhere.
     pub floor_from_m: f64,
+    /// The camera's position in `base_link`: ahead of the base and above
+    /// the floor, m. The bottom row's ray falls from there to the floor at
+    /// `floor_from_m`, so an obstacle lower than the camera is in the image
+    /// only beyond where that ray passes below its top ([`View::top_from`]).
+    pub camera_x_m: f64,
+    pub camera_z_m: f64,
 }
 
 impl View {
     /// The view of a pinhole camera `width` pixels wide with focal length
     /// `fx`, seeing the floor everywhere in its angle.
     pub fn pinhole(width: u32, fx: f64, yaw: f64) -> Self {
-        Self { yaw, half_fov: (width as f64 / 2.0 / fx).atan(), floor_from_m: 0.0 }
+        Self { yaw, half_fov: (width as f64 / 2.0 / fx).atan(), floor_from_m: 0.0, camera_x_m: 0.0, camera_z_m: 0.0 }
     }
 
     /// The view of `camera`, with where its image's bottom row meets the
@@ -261,17 +284,36 @@ impl View {
         let projector = vlnav_geometry::camera::Projector::new(camera);
         let bottom = f64::from(camera.height) - 0.5;
         let floor_from_m = projector.ground_point(camera.intrinsics.cx, bottom).map_or(f64::INFINITY, |g| g.x.max(0.0));
-        Self { floor_from_m, ..Self::pinhole(camera.width, camera.intrinsics.fx, camera.mount.yaw) }
+        Self {
+            floor_from_m,
+            camera_x_m: camera.mount.translation.x,
+            camera_z_m: camera.mount.translation.z,
+            ..Self::pinhole(camera.width, camera.intrinsics.fx, camera.mount.yaw)
+        }
     }
 
     fn sees(&self, p: &Vector2<f64>, near: f64) -> bool {
         p.norm() >= near && wrap_angle(p.y.atan2(p.x) - self.yaw).abs() < self.half_fov
     }
 
-    /// Whether the floor at `p` is in the image: in the view's angle, and
-    /// not so near that it lies below the bottom row.
-    fn sees_floor(&self, p: &Vector2<f64>, near: f64) -> bool {
-        self.sees(p, near) && p.x >= self.floor_from_m
+    /// Where something `top_m` high (above the floor) comes into the image
+    /// ahead, m along x: where the bottom row's ray passes below its top.
+    /// The floor itself (0 m): `floor_from_m`; as high as the camera or
+    /// higher: the camera's own x. 0 when the image shows the floor everywhere.
+    pub fn top_from(&self, top_m: f64) -> f64 {
+        if self.floor_from_m <= 0.0 {
+            0.0
+        } else if top_m >= self.camera_z_m {
+            self.camera_x_m.min(self.floor_from_m)
+        } else {
+            self.camera_x_m + (self.floor_from_m - self.camera_x_m) * (1.0 - top_m.max(0.0) / self.camera_z_m)
+        }
+    }
+
+    /// Whether something `top_m` high at `p` is in the image: in the view's
+    /// angle, and not so near that its top lies below the bottom row.
+    fn sees_top(&self, p: &Vector2<f64>, near: f64, top_m: f64) -> bool {
+        self.sees(p, near) && p.x >= self.top_from(top_m)
     }
 }
 
@@ -500,16 +542,15 @@ impl RobotState {
                 return false;
             }
             let measured = cloud.seen.as_ref().is_none_or(|s| s.reaches(&b, p.memory_seen_margin_m));
-            // A marking on the floor (a no-go cell with nothing standing
-            // on it) is looked at only where the image shows that floor:
-            // depth along its bearing passes over it whether or not the
-            // camera sees it, and a cable the robot is about to cross lies
-            // below the image's bottom row.
-            let looked_at = if m.cell.no_go && m.cell.blocking < 2 {
-                input.view.sees_floor(&b, p.memory_near_m)
-            } else {
-                input.view.sees(&b, p.memory_near_m)
-            };
+            // A cell is looked at only where the image shows its top: depth
+            // along its bearing passes over something low whether or not
+            // the camera sees it. A marking on the floor (a no-go cell with
+            // nothing standing on it) needs the floor itself in the image —
+            // a cable the robot is about to cross lies below the bottom row
+            // — and a water bottle 0.75 m ahead of a D455 0.6 m up is below
+            // it too.
+            let top = if m.cell.no_go && m.cell.blocking < 2 { 0.0 } else { p.top_of(&m.cell) };
+            let looked_at = input.view.sees_top(&b, p.memory_near_m, top);
             if b.norm() > p.memory_range_m || (measured && looked_at) {
                 return false;
             }
@@ -572,7 +613,8 @@ impl RobotState {
     }
 
     /// At debug level: why the robot is blocked — the remembered cells
-    /// within `radius` m (base_link), their age and whether they move.
+    /// within `radius` m (base_link), their age, their blocking voxels and
+    /// whether they move.
     fn log_blocked(&self, input: &StepInput<'_>, radius: f64, why: &str) {
         if !tracing::enabled!(tracing::Level::DEBUG) {
             return;
@@ -584,10 +626,11 @@ impl RobotState {
             .filter(|(b, _)| b.norm() < radius)
             .map(|(b, m)| {
                 format!(
-                    "({:.2}, {:.2}) {:.1} s{}",
+                    "({:.2}, {:.2}) {:.1} s, {} voxels{}",
                     b.x,
                     b.y,
                     input.stamp - m.stamp,
+                    m.cell.blocking,
                     if m.moving { " moving" } else { "" }
                 )
             })
@@ -808,6 +851,11 @@ mod tests {
     }
 
     /// The cells planned with after merging `cloud` into the memory, seen with `view`.
+    /// A level view ±0.75 rad wide that shows the floor everywhere.
+    fn view_ahead() -> View {
+        View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0, camera_x_m: 0.0, camera_z_m: 0.0 }
+    }
+
     fn merged_in_view(state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View) -> Vec<Cell> {
         let p = FollowParams::default();
         let input = StepInput {
@@ -827,7 +875,7 @@ mod tests {
     }
 
     fn remembered_after(state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64) -> usize {
-        merged_in_view(state, cloud, stamp, View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 }).len()
+        merged_in_view(state, cloud, stamp, view_ahead()).len()
     }
 
     #[test]
@@ -858,7 +906,7 @@ mod tests {
         // A cable 0.9 m ahead: inside the view's angle, and the depth along
         // its bearing reaches 4 m (the floor and the walls beyond), but the
         // floor shows in the image only from 1.16 m on.
-        let view = View { yaw: 0.0, half_fov: 0.75, floor_from_m: 1.16 };
+        let view = View { floor_from_m: 1.16, camera_x_m: 0.3, camera_z_m: 0.6, ..view_ahead() };
         let cable = Cell { x: 0.9, y: 0.1, blocking: 0, low: false, no_go: true };
         let remembered = |state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View| {
             merged_in_view(state, cloud, stamp, view).len()
@@ -874,6 +922,35 @@ mod tests {
         let post = Cell { blocking: 3, no_go: false, ..cable };
         remembered(&mut state, &ObstacleCloud { cells: vec![post], ..frame(4.0, None) }, 0.0, view);
         assert_eq!(remembered(&mut state, &frame(4.0, None), 0.2, view), 0);
+    }
+
+    #[test]
+    fn a_low_obstacle_below_the_image_is_remembered_until_the_image_shows_its_top() {
+        // The simulated D455, 0.6 m up and 0.3 m ahead, shows the floor from
+        // 1.16 m on: the top of a water bottle 0.3 m high (three voxels above
+        // 0.15 m) from 0.73 m on. Nearer, the depth along its bearing passes
+        // over it.
+        let view = View { floor_from_m: 1.16, camera_x_m: 0.3, camera_z_m: 0.6, ..view_ahead() };
+        assert!((view.top_from(0.30) - 0.73).abs() < 1e-9, "{}", view.top_from(0.30));
+        assert_eq!(view.top_from(0.0), 1.16);
+        assert_eq!(view.top_from(1.5), 0.3, "taller than the camera: in view from the camera on");
+        let bottle = Cell { x: 0.7, y: -0.1, blocking: 3, low: false, no_go: false };
+        let mut state = RobotState::default();
+        let seen =
+            |state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64| merged_in_view(state, cloud, stamp, view);
+        assert_eq!(seen(&mut state, &ObstacleCloud { cells: vec![bottle], ..frame(4.0, None) }, 0.0).len(), 1);
+        assert_eq!(seen(&mut state, &frame(4.0, None), 0.2).len(), 1, "below the image: remembered");
+        // A person there, taller than the camera, is in the image: gone
+        // when the depth reaches past where they stood.
+        let mut state = RobotState::default();
+        let person = Cell { blocking: 30, ..bottle };
+        seen(&mut state, &ObstacleCloud { cells: vec![person], ..frame(4.0, None) }, 0.0);
+        assert!(seen(&mut state, &frame(4.0, None), 0.2).is_empty());
+        // The bottle farther off, with its top in the image: forgotten too.
+        let mut state = RobotState::default();
+        let far = Cell { x: 0.9, ..bottle };
+        seen(&mut state, &ObstacleCloud { cells: vec![far], ..frame(4.0, None) }, 0.0);
+        assert!(seen(&mut state, &frame(4.0, None), 0.2).is_empty());
     }
 
     #[test]
@@ -970,14 +1047,7 @@ mod tests {
                 };
                 let cloud = post_frame(pose, post);
                 let odom = Pose2::new(pose.x, pose.y, pose.theta + if k % 2 == 0 { 0.008 } else { -0.008 });
-                let input = StepInput {
-                    stamp: t,
-                    pose: odom,
-                    goal,
-                    cloud: &cloud,
-                    max_speed: 0.0,
-                    view: View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 },
-                };
+                let input = StepInput { stamp: t, pose: odom, goal, cloud: &cloud, max_speed: 0.0, view: view_ahead() };
                 state.merge_memory(&cloud, &input, &p);
                 let moving: Vec<Vector2<f64>> = state.memory.values().filter(|m| m.moving).map(|m| m.at).collect();
                 assert!(
@@ -1009,7 +1079,7 @@ mod tests {
                 goal,
                 cloud: &cloud,
                 max_speed: 0.0,
-                view: View { yaw: 0.0, half_fov: 0.75, floor_from_m: 0.0 },
+                view: view_ahead(),
             };
             state.merge_memory(&cloud, &input, &p);
             seen_moving += usize::from(state.memory.values().any(|m| m.moving && m.stamp == t));

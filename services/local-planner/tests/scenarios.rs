@@ -13,7 +13,7 @@ use vlnav_local_planner::planner::{Planner, PlannerParams};
 const HALF_WIDTH: f64 = 0.335;
 const HALF_FOV: f64 = 43.0 * PI / 180.0;
 const DT: f64 = 0.2;
-const VIEW: View = View { yaw: 0.0, half_fov: HALF_FOV, floor_from_m: 0.0 };
+const VIEW: View = View { yaw: 0.0, half_fov: HALF_FOV, floor_from_m: 0.0, camera_x_m: 0.0, camera_z_m: 0.0 };
 
 fn planner() -> &'static Planner {
     static P: OnceLock<Planner> = OnceLock::new();
