@@ -32,8 +32,10 @@
 //!   goal in one frame period, so it stops on the goal rather than past it.
 //! - Rotating in place sweeps a disc: the Husky's corners reach
 //!   `sweep_radius_m` (its half-diagonal, √(0.495² + 0.335²) = 0.60 m, plus
-//!   0.05 m). Before any turn in place the disc must be free of obstacle
-//!   cells (this frame's or remembered); if it is not, the robot first
+//!   0.05 m; a remembered cell counts `memory_drift_m`, 0.05 m, farther
+//!   out, for the odometry's slip since it was seen). Before any turn in
+//!   place the disc must be free of obstacle cells (this frame's or
+//!   remembered); if it is not, the robot first
 //!   moves straight away from the nearest such cell at `escape_speed`
 //!   (backwards only where no remembered cell lies behind it), and reports
 //!   BLOCKED where it can do neither, rather than grinding a corner along a
@@ -170,6 +172,11 @@ pub struct FollowParams {
     pub voxel_m: f64,
     /// Radius of the disc a turn in place sweeps (half-diagonal + margin), m.
     pub sweep_radius_m: f64,
+    /// Added to the sweep disc for remembered cells: where the odometry
+    /// puts a cell seen seconds ago may be off by the slip since (a turn in
+    /// place went ahead 5 cm clear of a plant remembered 16 s before, and
+    /// its corner met the plant: evaluation, complex mission), m.
+    pub memory_drift_m: f64,
     /// Half the robot's length and width, m (Husky A200: 0.99 m × 0.67 m).
     pub half_length_m: f64,
     pub half_width_m: f64,
@@ -221,6 +228,7 @@ impl Default for FollowParams {
             obstacle_height_m: 0.15,
             voxel_m: 0.05,
             sweep_radius_m: 0.65,
+            memory_drift_m: 0.05,
             half_length_m: 0.495,
             half_width_m: 0.335,
             escape_speed: 0.15,
@@ -383,8 +391,11 @@ pub struct RobotState {
     /// Best distance of the current window and the stamp it was reached.
     progress: Option<(f64, f64)>,
     last_goal: Option<GoalSpec>,
-    /// The latest obstacle cloud and chosen path.
+    /// The latest obstacle cloud (this frame's cells, then remembered
+    /// ones) and chosen path.
     pub cloud: ObstacleCloud,
+    /// How many of `cloud`'s cells this frame measured (the rest are remembered).
+    measured_cells: usize,
     pub last_selection: Option<Selection>,
     /// The chosen path in odom, for the course it set.
     last_path_odom: Vec<Vector2<f64>>,
@@ -413,12 +424,17 @@ impl RobotState {
     /// disc first: a straight move away from the nearest cell in it, or
     /// BLOCKED when the way out is taken too.
     fn sweep(&self, p: &FollowParams) -> Option<Sweep> {
-        let r2 = (p.sweep_radius_m * p.sweep_radius_m) as f32;
+        // A remembered cell carries the odometry's drift since it was seen.
+        let r2_now = (p.sweep_radius_m * p.sweep_radius_m) as f32;
+        let r_mem = p.sweep_radius_m + p.memory_drift_m;
+        let r2_mem = (r_mem * r_mem) as f32;
         let nearest = self
             .cloud
             .cells
             .iter()
-            .filter(|c| c.x * c.x + c.y * c.y < r2)
+            .enumerate()
+            .filter(|(i, c)| c.x * c.x + c.y * c.y < if *i < self.measured_cells { r2_now } else { r2_mem })
+            .map(|(_, c)| c)
             .min_by(|a, b| (a.x * a.x + a.y * a.y).total_cmp(&(b.x * b.x + b.y * b.y)))?;
         // Away from it along the robot's axis; the way out must be free for
         // the robot's half-length plus the sweep's margin (at least 0.1 m).
@@ -521,6 +537,7 @@ impl RobotState {
     /// memory becomes this frame's cells and the still-valid old ones.
     fn merge_memory(&mut self, cloud: &ObstacleCloud, input: &StepInput<'_>, p: &FollowParams) -> ObstacleCloud {
         let mut cells = cloud.cells.clone();
+        self.measured_cells = cells.len();
         let ats: Vec<Vector2<f64>> =
             cloud.cells.iter().map(|c| input.pose.transform(&Vector2::new(c.x as f64, c.y as f64))).collect();
         let moving = self.moving_cells(cloud, &ats, input.stamp, p);
@@ -1146,6 +1163,18 @@ mod tests {
         // A goal whose footprint would lie on it is moved sideways off it.
         assert!(!cable(true).footprint_clear_at(&Vector2::new(0.6, 0.2), 0.0, &p));
         assert!(cable(true).footprint_clear_at(&Vector2::new(0.6, -0.0), 0.0, &p));
+    }
+
+    #[test]
+    fn a_remembered_cell_counts_farther_out_for_a_turn_in_place() {
+        let p = FollowParams::default();
+        // 0.67 m behind-right: outside the 0.65 m disc, inside 0.70 m.
+        let cell = Cell { x: -0.4, y: -0.5375, blocking: 10, low: false, no_go: false };
+        let cloud = ObstacleCloud { cells: vec![cell], ..ObstacleCloud::default() };
+        let mut state = RobotState { cloud, measured_cells: 1, ..RobotState::default() };
+        assert_eq!(state.sweep(&p), None, "measured this frame: the turn may go");
+        state.measured_cells = 0;
+        assert_eq!(state.sweep(&p), Some(Sweep::Escape(p.escape_speed)), "remembered: move away first");
     }
 
     #[test]
