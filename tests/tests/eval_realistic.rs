@@ -25,10 +25,12 @@ use vlnav_eval::metrics::Mode;
 /// since the footprint guard and the goal shift keep the body out of no-go
 /// cells too, and a no-go marking on the floor is remembered until the
 /// image shows that floor (services/local-planner/src/control.rs).
+/// Garage trial 1 stops 1 cm farther since a turn in place counts
+/// remembered cells 5 cm farther out (`memory_drift_m`, same file).
 const PINNED: &str = "crossing 0 succeeded true true +0.04 0 0\n\
 crossing 1 succeeded true true +0.02 0 0\n\
 garage 0 succeeded true true +0.02 0 0\n\
-garage 1 succeeded true true +0.03 0 0\n\
+garage 1 succeeded true true +0.04 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\
 precise 1 succeeded true true +0.03 0 0\n\
 symmetric 0 succeeded true true +0.06 0 0\n\
