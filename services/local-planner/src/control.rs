@@ -113,7 +113,7 @@ use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use nalgebra::Vector2;
 use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
 
-use crate::cloud::{Cell, ObstacleCloud, SeenRange};
+use crate::cloud::{Cell, CloudParams, ObstacleCloud, SeenRange};
 use crate::planner::{Planner, Scratch, Selection};
 
 /// Path-following and watchdog settings.
@@ -198,6 +198,7 @@ impl FollowParams {
 
 impl Default for FollowParams {
     fn default() -> Self {
+        let cloud = CloudParams::default();
         Self {
             look_ahead_m: 0.5,
             yaw_gain: 7.5,
@@ -225,8 +226,8 @@ impl Default for FollowParams {
             moving_lookback_s: 0.25,
             moving_cluster_m: 0.3,
             moving_memory_s: 1.5,
-            obstacle_height_m: 0.15,
-            voxel_m: 0.05,
+            obstacle_height_m: cloud.obstacle_height,
+            voxel_m: cloud.voxel,
             sweep_radius_m: 0.65,
             memory_drift_m: 0.05,
             half_length_m: 0.495,
