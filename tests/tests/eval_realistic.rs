@@ -27,7 +27,10 @@ use vlnav_eval::metrics::Mode;
 /// image shows that floor (services/local-planner/src/control.rs).
 /// Garage trial 1 stops 1 cm farther since a turn in place counts
 /// remembered cells 5 cm farther out (`memory_drift_m`, same file).
-const PINNED: &str = "crossing 0 succeeded true true +0.04 0 0\n\
+/// Crossing trial 0 stops 2 cm nearer since the robot waits for walking
+/// people (services/local-planner/src/people.rs): its way to the plant
+/// is no longer the same.
+const PINNED: &str = "crossing 0 succeeded true true +0.02 0 0\n\
 crossing 1 succeeded true true +0.02 0 0\n\
 garage 0 succeeded true true +0.02 0 0\n\
 garage 1 succeeded true true +0.04 0 0\n\

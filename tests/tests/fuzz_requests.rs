@@ -217,6 +217,15 @@ fn entries() -> Vec<Entry> {
                 goal: Some(frames::goal(rng)),
                 no_go_points: vec![pb::Point3 { x: fuzz::plausible_f64(rng, -5.0, 5.0), y: 0.0, z: 0.0 }],
                 max_speed: fuzz::plausible_f64(rng, 0.0, 1.0),
+                people: vec![pb::BoundingBox {
+                    x_min: fuzz::plausible_f64(rng, 0.0, 640.0) as f32,
+                    y_min: fuzz::plausible_f64(rng, 0.0, 480.0) as f32,
+                    x_max: fuzz::plausible_f64(rng, 0.0, 640.0) as f32,
+                    y_max: fuzz::plausible_f64(rng, 0.0, 480.0) as f32,
+                    class_id: 0,
+                    score: 0.8,
+                    label: "person".into(),
+                }],
             },
             |m, _| {
                 vlnav_local_planner::grpc::step_request(m, DepthDefaults { min_m: 0.3, max_m: 10.0 })

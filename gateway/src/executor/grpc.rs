@@ -35,6 +35,8 @@ pub struct Stages<'a> {
     pub frame: &'a pb::RgbdFrame,
     /// This frame's no-go points from the segmenter, for its local-planner call.
     pub no_go: Vec<pb::Point3>,
+    /// This frame's person boxes from the detector, for its local-planner call.
+    pub people: Vec<pb::BoundingBox>,
     /// The primitive the local planner chose on this frame, base_link.
     pub path: Vec<pb::Point3>,
 }
@@ -72,22 +74,32 @@ impl Stages<'_> {
             }
             Request::Perceive { detect } => {
                 let segment = self.segment();
-                let boxes = match detect {
-                    Some((_, min_score)) => {
-                        // Every class: the machine weighs other classes' boxes against the target's.
-                        let mut detector = pipeline.detector.clone();
-                        let request =
-                            pb::DetectRequest { frame: Some(self.frame.clone()), class_ids: vec![], min_score };
-                        let (detected, no_go) = tokio::join!(detector.detect(self.deadline(request)), segment);
-                        let boxes = detected.map_err(self.failed("detector"))?.into_inner().boxes;
-                        self.no_go = no_go?;
-                        boxes.iter().map(detection_from_proto).collect()
-                    }
-                    None => {
-                        self.no_go = segment.await?;
+                // A FIND asks for every class (the machine weighs other
+                // classes' boxes against the target's); otherwise people
+                // only, at the detector's default score, for the local
+                // planner to track (services/local-planner/src/people.rs).
+                let (class_ids, min_score) = match detect {
+                    Some((_, min_score)) => (vec![], min_score),
+                    None => (vec![PERSON_CLASS], 0.0),
+                };
+                let mut detector = pipeline.detector.clone();
+                let request = pb::DetectRequest { frame: Some(self.frame.clone()), class_ids, min_score };
+                let (detected, no_go) = tokio::join!(detector.detect(self.deadline(request)), segment);
+                self.no_go = no_go?;
+                let boxes = match (detected, detect) {
+                    (Ok(d), _) => d.into_inner().boxes,
+                    (Err(s), Some(_)) => return Err(self.failed("detector")(s)),
+                    // Driving needs only depth: without the detector the
+                    // robot goes on without knowing who is a person.
+                    (Err(s), None) => {
+                        let failure = self.failed("detector")(s);
+                        tracing::warn!(robot = self.robot_id, "driving without person boxes: {failure}");
                         Vec::new()
                     }
                 };
+                self.people = boxes.iter().filter(|b| b.class_id == PERSON_CLASS).cloned().collect();
+                let boxes =
+                    if detect.is_some() { boxes.iter().map(detection_from_proto).collect() } else { Vec::new() };
                 Ok(Reply::Perceived { boxes })
             }
             Request::Identify { boxes, name } => {
@@ -154,6 +166,7 @@ impl Stages<'_> {
                         goal: Some(goal_to_proto(&goal)),
                         no_go_points: self.no_go.clone(),
                         max_speed: 0.0,
+                        people: self.people.clone(),
                     }))
                     .await
                     .map_err(self.failed("local-planner"))?
@@ -237,7 +250,7 @@ fn goal_from_proto(g: &pb::Goal) -> Result<Goal, StageFailure> {
         .map_err(|e| StageFailure { stage: "subgoal", message: format!("it returned an unusable goal: {e}") })
 }
 
-fn detection_from_proto(b: &pb::BoundingBox) -> Detection {
+pub(crate) fn detection_from_proto(b: &pb::BoundingBox) -> Detection {
     Detection {
         x_min: b.x_min,
         y_min: b.y_min,

@@ -122,10 +122,10 @@ pub enum Request {
     /// A step begins: reset the local planner's state for this robot, then,
     /// for a MOVE, turn `move_goal` into an odometry goal.
     StartStep { index: u32, action: Action, desc: String, move_goal: Option<MoveQuery> },
-    /// Segment the frame into no-go points (kept by the adapter for this
-    /// frame's `Drive`) and, for a FIND, detect every class at `min_score`
-    /// (the step's `class_id` is the target; the others vote against it),
-    /// both at once.
+    /// Segment the frame into no-go points and detect: for a FIND every
+    /// class at `min_score` (the step's `class_id` is the target; the others
+    /// vote against it), otherwise people only; all at once. The adapter
+    /// keeps the no-go points and person boxes for this frame's `Drive`.
     Perceive { detect: Option<(i32, f32)> },
     /// Which of `boxes` is the person `name`.
     Identify { boxes: Vec<Detection>, name: String },

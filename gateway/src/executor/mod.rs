@@ -224,8 +224,14 @@ impl MissionRun {
         let cycle =
             tracing::info_span!(parent: &parent, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
         let robot_id = self.robot_id.clone();
-        let mut stages =
-            grpc::Stages { pipeline: ctx.pipeline, robot_id: &robot_id, frame, no_go: Vec::new(), path: Vec::new() };
+        let mut stages = grpc::Stages {
+            pipeline: ctx.pipeline,
+            robot_id: &robot_id,
+            frame,
+            no_go: Vec::new(),
+            people: Vec::new(),
+            path: Vec::new(),
+        };
         let mut seen = Seen::default();
         let frame_in = grpc::frame_from_proto(frame, sf.truth.as_ref());
         let mut next = guarded(&mut self.machine, |m| m.on_frame(ctx.params, frame_in));
@@ -255,6 +261,10 @@ impl MissionRun {
                 }
             };
         };
+        if seen.boxes.is_empty() {
+            // Outside a FIND the detector was asked for people only.
+            seen.boxes = stages.people.iter().map(grpc::detection_from_proto).collect();
+        }
         seen.no_go = stages.no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
         seen.path = stages.path.iter().map(|p| [p.x, p.y]).collect();
         Tick {

@@ -8,6 +8,9 @@ pub use vlnav_geometry::{GoalSpec as Goal, Pose2};
 
 pub use vlnav_geometry::Twist;
 
+/// COCO's class index for a person (YOLOv8 numbering).
+pub const PERSON_CLASS: i32 = 0;
+
 /// One sensor frame as the state machine sees it: when, where, and how the
 /// camera looks. Pixels stay with the adapter, which hands them to the stages.
 #[derive(Clone, Debug, Default)]

@@ -10,7 +10,7 @@ use vlnav_geometry::depth::DepthView;
 use vlnav_geometry::{GoalSpec, Pose2};
 use vlnav_runtime::actor::Mailbox;
 
-use crate::cloud::{CloudBuilder, CloudParams, ObstacleCloud, SeenRange};
+use crate::cloud::{CloudBuilder, CloudParams, ObstacleCloud, PixelBox, SeenRange};
 use crate::control::{FollowParams, RobotState, StepInput, StepOutput, View};
 use crate::planner::Planner;
 
@@ -24,6 +24,8 @@ pub struct StepRequest {
     pub depth_mm: bytes::Bytes,
     pub goal: GoalSpec,
     pub no_go: Vec<[f64; 3]>,
+    /// People the detector boxed in the frame, pixels.
+    pub people: Vec<PixelBox>,
     pub max_speed: f64,
 }
 
@@ -68,7 +70,7 @@ async fn run(mut a: Actor, mut rx: mpsc::Receiver<Msg>) {
             Msg::Step { request, reply } => {
                 let r = *request;
                 let cloud = match DepthView::new(r.camera.width, r.camera.height, &r.depth_mm) {
-                    Ok(depth) => a.builder.from_depth(&r.camera, &depth, &r.no_go),
+                    Ok(depth) => a.builder.from_depth(&r.camera, &depth, &r.people, &r.no_go),
                     // The tonic layer checked the size; an empty cloud that saw
                     // nothing (so forgets nothing remembered) is the safe fallback.
                     Err(_) => {

@@ -18,6 +18,14 @@
 //! included. Where the D455 returns no depth (stereo occlusion bands left of
 //! near edges, textureless or distant surfaces) the frame saw nothing, and
 //! the obstacle memory (`control.rs`) keeps what it remembers there.
+//!
+//! People the detector boxed in the frame ([`PixelBox`]) mark the cells their
+//! pixels fall in: a pixel inside a person's box belongs to the person when
+//! its depth is within `person_band_m` of the box's near depth (the lower
+//! quartile of the box's central part, where the torso is; the background
+//! around a person is farther). Each person's blocking points also give
+//! where they stand ([`ObstacleCloud::people`]), for the tracker in
+//! `control.rs`.
 
 use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::camera::Camera;
@@ -41,6 +49,10 @@ pub struct CloudParams {
     pub voxel: f64,
     /// Use every `stride`-th depth row and column.
     pub stride: usize,
+    /// A pixel in a person's box belongs to the person within this depth of
+    /// the box's near depth, m (a body's depth plus the D455's error at a
+    /// few metres).
+    pub person_band_m: f64,
 }
 
 impl Default for CloudParams {
@@ -53,6 +65,7 @@ impl Default for CloudParams {
             max_range: 4.25,
             voxel: 0.05,
             stride: 4,
+            person_band_m: 0.4,
         }
     }
 }
@@ -68,6 +81,24 @@ pub struct Cell {
     pub low: bool,
     /// A virtual point from the segmenter's no-go mask.
     pub no_go: bool,
+    /// 0, or k when the frame's k-th person box covers one of the column's
+    /// blocking points (index k − 1 of [`ObstacleCloud::people`]).
+    pub person: u8,
+}
+
+/// A box around a person in the frame's image, pixels.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelBox {
+    pub x_min: f64,
+    pub y_min: f64,
+    pub x_max: f64,
+    pub y_max: f64,
+}
+
+impl PixelBox {
+    fn contains(&self, u: f64, v: f64) -> bool {
+        u >= self.x_min && u <= self.x_max && v >= self.y_min && v <= self.y_max
+    }
 }
 
 impl Cell {
@@ -88,6 +119,9 @@ pub struct ObstacleCloud {
     /// How far the frame saw along each bearing; `None` for clouds not built
     /// from a depth frame (synthetic points), whose coverage is unknown.
     pub seen: Option<SeenRange>,
+    /// Where each person box's blocking points stand on average, `base_link`
+    /// (`None`: the box held none), in the order of the boxes given.
+    pub people: Vec<Option<Vector2<f64>>>,
 }
 
 /// The farthest horizontal range a depth frame measured along each bearing
@@ -192,6 +226,7 @@ pub struct CloudBuilder {
     cells: Vec<Cell>,
     raw: usize,
     seen: Option<SeenRange>,
+    people: Vec<Option<Vector2<f64>>>,
 }
 
 const NO_CELL: u32 = u32::MAX;
@@ -214,6 +249,7 @@ impl CloudBuilder {
             cells: Vec::new(),
             raw: 0,
             seen: None,
+            people: Vec::new(),
         }
     }
 
@@ -231,6 +267,7 @@ impl CloudBuilder {
         self.occupied.fill(0);
         self.raw = 0;
         self.seen = None;
+        self.people.clear();
     }
 
     fn cell_mut(&mut self, ix: usize, iy: usize) -> &mut Cell {
@@ -244,6 +281,7 @@ impl CloudBuilder {
                 blocking: 0,
                 low: false,
                 no_go: false,
+                person: 0,
             });
         }
         let i = self.column[slot] as usize;
@@ -296,8 +334,45 @@ impl CloudBuilder {
         }
     }
 
-    /// Adds the depth frame's points.
-    pub fn add_depth(&mut self, cam: &Camera, depth: &DepthView<'_>) {
+    /// The near depth of each person box, m (`None`: no valid depth in its
+    /// central part): the lower quartile of the valid depth sampled in the
+    /// box's middle half across and middle 70 % down.
+    fn person_depths(&self, cam: &Camera, depth: &DepthView<'_>, people: &[PixelBox]) -> Vec<Option<f64>> {
+        let stride = self.params.stride.max(1);
+        let (lo, hi) = (cam.depth_min_m * 1000.0, cam.depth_max_m * 1000.0);
+        people
+            .iter()
+            .map(|b| {
+                let (w, h) = (b.x_max - b.x_min, b.y_max - b.y_min);
+                let (u0, u1) = (b.x_min + 0.25 * w, b.x_max - 0.25 * w);
+                let (v0, v1) = (b.y_min + 0.15 * h, b.y_max - 0.15 * h);
+                let mut d: Vec<f64> = (0..depth.height())
+                    .step_by(stride)
+                    .filter(|&v| (v as f64) >= v0 && (v as f64) <= v1)
+                    .flat_map(|v| {
+                        (0..depth.width())
+                            .step_by(stride)
+                            .filter(move |&u| (u as f64) >= u0 && (u as f64) <= u1)
+                            .map(move |u| depth.mm(u, v) as f64)
+                    })
+                    .filter(|&z| z > 0.0 && z > lo && z < hi)
+                    .collect();
+                if d.is_empty() {
+                    return None;
+                }
+                let q = d.len() / 4;
+                let (_, near, _) = d.select_nth_unstable_by(q, f64::total_cmp);
+                Some(*near / 1000.0)
+            })
+            .collect()
+    }
+
+    /// Adds the depth frame's points; pixels of the people in `people` (at
+    /// most 255) mark their cells and give where each stands.
+    pub fn add_depth(&mut self, cam: &Camera, depth: &DepthView<'_>, people: &[PixelBox]) {
+        let people = &people[..people.len().min(usize::from(u8::MAX))];
+        let near = self.person_depths(cam, depth, people);
+        let mut sums = vec![(0.0, 0.0, 0usize); people.len()];
         let k = cam.intrinsics;
         let t = cam.mount.optical_to_base();
         let stride = self.params.stride.max(1);
@@ -305,6 +380,7 @@ impl CloudBuilder {
         let origin = t.apply(&Vector3::zeros());
         let mut seen = SeenRange::new(Vector2::new(origin.x, origin.y));
         let top = self.params.ground_z + self.params.max_height;
+        let blocking_from = self.params.ground_z + self.params.obstacle_height;
         for v in (0..depth.height()).step_by(stride) {
             let yn = (v as f64 - k.cy) / k.fy;
             for u in (0..depth.width()).step_by(stride) {
@@ -316,16 +392,32 @@ impl CloudBuilder {
                 let zm = z / 1000.0;
                 let p = t.apply(&Vector3::new((u as f64 - k.cx) / k.fx * zm, yn * zm, zm));
                 if p.z <= top {
-                    if p.z > self.params.ground_z + self.params.obstacle_height {
+                    if p.z > blocking_from {
                         seen.record_obstacle(p.x, p.y);
                     } else {
                         seen.record(p.x, p.y);
                     }
                 }
                 self.add_point(p.x, p.y, p.z);
+                if people.is_empty() || p.z <= blocking_from || p.z > top {
+                    continue;
+                }
+                let person = people.iter().zip(&near).position(|(b, near)| {
+                    near.is_some_and(|n| (zm - n).abs() <= self.params.person_band_m) && b.contains(u as f64, v as f64)
+                });
+                if let (Some(i), Some((ix, iy))) = (person, self.column_of(p.x, p.y)) {
+                    let cell = self.column[ix * self.ny + iy];
+                    if cell != NO_CELL {
+                        self.cells[cell as usize].person = i as u8 + 1;
+                        let s = &mut sums[i];
+                        *s = (s.0 + p.x, s.1 + p.y, s.2 + 1);
+                    }
+                }
             }
         }
         self.seen = Some(seen);
+        self.people =
+            sums.into_iter().map(|(x, y, n)| (n > 0).then(|| Vector2::new(x / n as f64, y / n as f64))).collect();
     }
 
     /// Builds a cloud from `base_link` points and no-go points (benchmarks, tests).
@@ -340,10 +432,16 @@ impl CloudBuilder {
         self.finish()
     }
 
-    /// Builds a cloud from a depth frame and no-go points.
-    pub fn from_depth(&mut self, cam: &Camera, depth: &DepthView<'_>, no_go: &[[f64; 3]]) -> ObstacleCloud {
+    /// Builds a cloud from a depth frame, the people boxed in it and no-go points.
+    pub fn from_depth(
+        &mut self,
+        cam: &Camera,
+        depth: &DepthView<'_>,
+        people: &[PixelBox],
+        no_go: &[[f64; 3]],
+    ) -> ObstacleCloud {
         self.clear();
-        self.add_depth(cam, depth);
+        self.add_depth(cam, depth, people);
         for p in no_go {
             self.add_no_go(p[0], p[1]);
         }
@@ -351,7 +449,12 @@ impl CloudBuilder {
     }
 
     fn finish(&mut self) -> ObstacleCloud {
-        ObstacleCloud { cells: self.cells.clone(), raw_points: self.raw, seen: self.seen.clone() }
+        ObstacleCloud {
+            cells: self.cells.clone(),
+            raw_points: self.raw,
+            seen: self.seen.clone(),
+            people: self.people.clone(),
+        }
     }
 }
 
@@ -413,12 +516,47 @@ mod tests {
         let bytes = encode_depth_mm(&depth);
         let view = DepthView::new(64, 48, &bytes).unwrap();
         let mut b = CloudBuilder::new(CloudParams { stride: 1, ..CloudParams::default() });
-        let c = b.from_depth(&cam, &view, &[]);
+        let c = b.from_depth(&cam, &view, &[], &[]);
         assert!(!c.cells.is_empty());
         for cell in &c.cells {
             assert!((cell.x - 2.0).abs() < 0.06, "cell at x {}", cell.x);
         }
         assert!(c.cells.iter().any(|c| c.blocking >= 2));
+    }
+
+    #[test]
+    fn a_person_box_marks_the_person_not_the_wall_behind() {
+        // Camera 0.5 m up looking level at a wall 4 m ahead; a person 0.4 m
+        // wide, 2 m ahead, fills columns 27–36 from the floor up to 1.7 m.
+        let cam = Camera {
+            width: 64,
+            height: 48,
+            intrinsics: Intrinsics { fx: 40.0, fy: 40.0, cx: 31.5, cy: 23.5 },
+            mount: Mount { translation: Vector3::new(0.0, 0.0, 0.5), ..Mount::default() },
+            depth_min_m: 0.3,
+            depth_max_m: 10.0,
+        };
+        let mut depth = vec![4.0; 64 * 48];
+        for v in 0..48 {
+            for u in 27..=36 {
+                depth[v * 64 + u] = 2.0;
+            }
+        }
+        let bytes = encode_depth_mm(&depth);
+        let view = DepthView::new(64, 48, &bytes).unwrap();
+        let mut b = CloudBuilder::new(CloudParams { stride: 1, ..CloudParams::default() });
+        // The detector's box is loose: it takes in wall on both sides.
+        let person = PixelBox { x_min: 22.0, y_min: 0.0, x_max: 41.0, y_max: 47.0 };
+        let c = b.from_depth(&cam, &view, &[person], &[]);
+        let marked: Vec<&Cell> = c.cells.iter().filter(|c| c.person == 1).collect();
+        assert!(!marked.is_empty());
+        assert!(marked.iter().all(|c| (c.x - 2.0).abs() < 0.1), "only the person's cells: {marked:?}");
+        assert!(c.cells.iter().any(|c| c.person == 0 && (c.x - 4.0).abs() < 0.1), "the wall is no person");
+        let at = c.people[0].expect("the person stands somewhere");
+        assert!((at.x - 2.0).abs() < 0.05 && at.y.abs() < 0.05, "stands at {at:?}");
+        // No boxes, no people.
+        let c = b.from_depth(&cam, &view, &[], &[]);
+        assert!(c.people.is_empty() && c.cells.iter().all(|c| c.person == 0));
     }
 
     #[test]

@@ -103,6 +103,23 @@
 //!   are remembered for `moving_memory_s` (1.5 s) only: a person who walked
 //!   past the robot's side must not stay behind as a wall it can neither
 //!   see nor turn through.
+//! - People: the detector's person boxes give where each person stands
+//!   (`cloud.rs`); `people::Tracker` links those places over frames and
+//!   tells walkers (faster than `PeopleParams::walking_mps` within the last
+//!   `keep_s`). No command — a turn in place, a way out of the sweep disc, a
+//!   path's (v, ω) — may bring the footprint within a walker's reach (their
+//!   radius plus how far they may have strayed), both carried on for
+//!   `PeopleParams::horizon_s`, nearer than standing still would: the
+//!   guard's fallbacks are tried, else the robot waits, stopped, and the
+//!   progress window restarts. The camera looks only ahead, and a person
+//!   who crossed in front of a turning robot walks on past its side, where
+//!   its corners swing (evaluation, hall with people crossing). In the
+//!   sweep disc everyone tracked counts `PeopleParams::radius_m` nearer
+//!   than where they stand: people sway and step while the corners swing.
+//!   A walker's cells stay ordinary cells in the memory: forgetting them
+//!   out of view once they walked (they had gone on) raised the crossing
+//!   hall's success but let the robot turn into people who had stopped
+//!   beside it.
 //! - No progress: while moving, if the distance to the goal has not dropped
 //!   by `progress_distance` (0.1 m) within `progress_window_s` (5 s of sensor
 //!   time), the step reports NO_PROGRESS once with a stop and the window
@@ -114,6 +131,7 @@ use nalgebra::Vector2;
 use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
 
 use crate::cloud::{Cell, CloudParams, ObstacleCloud, SeenRange};
+use crate::people::{PeopleParams, Tracker};
 use crate::planner::{Planner, Scratch, Selection};
 
 /// Path-following and watchdog settings.
@@ -165,6 +183,8 @@ pub struct FollowParams {
     pub moving_lookback_s: f64,
     pub moving_cluster_m: f64,
     pub moving_memory_s: f64,
+    /// People tracked from the detector's boxes (see `people.rs`).
+    pub people: PeopleParams,
     /// The obstacle cloud's `obstacle_height` and `voxel` (`CloudParams`;
     /// `actor::spawn` copies them): a cell's height above the floor is at
     /// least `obstacle_height_m + blocking · voxel_m`, m.
@@ -226,6 +246,7 @@ impl Default for FollowParams {
             moving_lookback_s: 0.25,
             moving_cluster_m: 0.3,
             moving_memory_s: 1.5,
+            people: PeopleParams::default(),
             obstacle_height_m: cloud.obstacle_height,
             voxel_m: cloud.voxel,
             sweep_radius_m: 0.65,
@@ -408,6 +429,8 @@ pub struct RobotState {
     last_pose: Option<Pose2>,
     /// The goal (odom position) a sideways shift was chosen for, and the shift, m.
     goal_shift: Option<(Vector2<f64>, f64)>,
+    /// The people seen lately, `odom`.
+    people: Tracker,
     scratch: Scratch,
 }
 
@@ -424,11 +447,24 @@ impl RobotState {
     /// `None` when a turn in place is free to go; otherwise how to clear the
     /// disc first: a straight move away from the nearest cell in it, or
     /// BLOCKED when the way out is taken too.
-    fn sweep(&self, p: &FollowParams) -> Option<Sweep> {
+    fn sweep(&self, input: &StepInput<'_>, p: &FollowParams) -> Option<Sweep> {
         // A remembered cell carries the odometry's drift since it was seen.
         let r2_now = (p.sweep_radius_m * p.sweep_radius_m) as f32;
         let r_mem = p.sweep_radius_m + p.memory_drift_m;
         let r2_mem = (r_mem * r_mem) as f32;
+        // A person gets a wider berth than furniture: their place (the
+        // tracker's) counts `PeopleParams::radius_m` nearer, since people
+        // sway and step while the corners swing.
+        let people: Vec<Cell> = self
+            .people
+            .people_at(input.stamp, &input.pose, &p.people)
+            .into_iter()
+            .filter(|q| q.norm() > 1e-6)
+            .map(|q| {
+                let near = q * ((q.norm() - p.people.radius_m).max(0.0) / q.norm());
+                Cell { x: near.x as f32, y: near.y as f32, blocking: 2, low: false, no_go: false, person: 1 }
+            })
+            .collect();
         let nearest = self
             .cloud
             .cells
@@ -436,6 +472,7 @@ impl RobotState {
             .enumerate()
             .filter(|(i, c)| c.x * c.x + c.y * c.y < if *i < self.measured_cells { r2_now } else { r2_mem })
             .map(|(_, c)| c)
+            .chain(people.iter().filter(|c| c.x * c.x + c.y * c.y < r2_now))
             .min_by(|a, b| (a.x * a.x + a.y * a.y).total_cmp(&(b.x * b.x + b.y * b.y)))?;
         // Away from it along the robot's axis; the way out must be free for
         // the robot's half-length plus the sweep's margin (at least 0.1 m).
@@ -508,13 +545,14 @@ impl RobotState {
         g.position() + left * shift
     }
 
-    /// The command itself if its arc keeps the footprint clear, else the
-    /// first clear of: the turn alone, the straight part alone, a stop.
-    fn guard(&self, v: f64, w: f64, dt: f64, p: &FollowParams) -> (f64, f64) {
+    /// The command itself if its arc keeps the footprint clear (and `ok`
+    /// accepts it), else the first such of: the turn alone, the straight
+    /// part alone, a stop.
+    fn guard(&self, v: f64, w: f64, dt: f64, p: &FollowParams, ok: &dyn Fn(f64, f64) -> bool) -> (f64, f64) {
         let horizon = |v: f64| dt + v.abs() / (2.0 * p.max_accel);
         [(v, w), (0.0, w), (v, 0.0)]
             .into_iter()
-            .find(|&(v, w)| (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, horizon(v), p))
+            .find(|&(v, w)| (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, horizon(v), p) && ok(v, w))
             .unwrap_or((0.0, 0.0))
     }
 }
@@ -541,6 +579,9 @@ impl RobotState {
         self.measured_cells = cells.len();
         let ats: Vec<Vector2<f64>> =
             cloud.cells.iter().map(|c| input.pose.transform(&Vector2::new(c.x as f64, c.y as f64))).collect();
+        let people: Vec<Option<Vector2<f64>>> =
+            cloud.people.iter().map(|at| at.map(|b| input.pose.transform(&b))).collect();
+        self.people.update(input.stamp, &people, &p.people);
         let moving = self.moving_cells(cloud, &ats, input.stamp, p);
         let now: Vec<((i32, i32), Remembered)> = cloud
             .cells
@@ -582,7 +623,7 @@ impl RobotState {
                 self.recent.pop_front();
             }
         }
-        ObstacleCloud { cells, raw_points: cloud.raw_points, seen: cloud.seen.clone() }
+        ObstacleCloud { cells, raw_points: cloud.raw_points, seen: cloud.seen.clone(), people: cloud.people.clone() }
     }
 
     /// Which of this frame's cells belong to something moving: a cell where
@@ -656,6 +697,44 @@ impl RobotState {
         tracing::debug!(stamp = input.stamp, ?cells, "{why}");
     }
 
+    /// Whether the command (v, ω), held for `PeopleParams::horizon_s`,
+    /// brings the robot's body nearer a walker than their reach and nearer
+    /// than standing still would (see the module docs). Logged at debug level.
+    fn people_closer(&self, input: &StepInput<'_>, v: f64, w: f64, p: &FollowParams) -> bool {
+        const SAMPLES: usize = 10;
+        let pp = &p.people;
+        if v == 0.0 && w == 0.0 {
+            return false;
+        }
+        let walkers = self.people.walkers_ahead(input.stamp, 0.0, &input.pose, pp).len();
+        if walkers == 0 {
+            return false;
+        }
+        // Distance from the footprint at (x, y, θ) to the point q.
+        let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| {
+            let (s, c) = th.sin_cos();
+            let (dx, dy) = (q.x - x, q.y - y);
+            let (bx, by) = (c * dx + s * dy, -s * dx + c * dy);
+            Vector2::new((bx.abs() - p.half_length_m).max(0.0), (by.abs() - p.half_width_m).max(0.0)).norm()
+        };
+        let mut moving = vec![f64::INFINITY; walkers];
+        let mut still = vec![f64::INFINITY; walkers];
+        for k in 0..=SAMPLES {
+            let t = pp.horizon_s * k as f64 / SAMPLES as f64;
+            let th = w * t;
+            let (x, y) = if w.abs() < 1e-6 { (v * t, 0.0) } else { (v / w * th.sin(), v / w * (1.0 - th.cos())) };
+            for (i, (q, reach)) in self.people.walkers_ahead(input.stamp, t, &input.pose, pp).iter().enumerate() {
+                moving[i] = moving[i].min(gap(q, x, y, th) - reach);
+                still[i] = still[i].min(gap(q, 0.0, 0.0, 0.0) - reach);
+            }
+        }
+        let closer = moving.iter().zip(&still).any(|(m, s)| *m < 0.0 && *m < *s - 0.01);
+        if closer {
+            tracing::debug!(stamp = input.stamp, v, w, "waiting for a walking person");
+        }
+        closer
+    }
+
     /// Obstacle cells currently remembered (this frame's included).
     pub fn remembered_cells(&self) -> usize {
         self.memory.len()
@@ -674,6 +753,7 @@ impl RobotState {
         if time_went_back {
             self.memory.clear();
             self.recent.clear();
+            self.people.clear();
             self.last_path_odom.clear();
         } else if let (true, Some(last)) = (jumped, self.last_pose) {
             self.recent.clear();
@@ -683,6 +763,7 @@ impl RobotState {
                 m.at = input.pose.transform(&last.inverse_transform(&m.at));
                 self.memory.insert(memory_key(&m.at), m);
             }
+            self.people.reanchor(|at| input.pose.transform(&last.inverse_transform(at)));
             self.last_path_odom.clear();
         }
         self.last_pose = Some(input.pose);
@@ -722,15 +803,14 @@ impl RobotState {
             if yaw_error.abs() < goal.yaw_tolerance {
                 return stop(self, out, StepStatus::Reached);
             }
-            match self.sweep(p) {
+            match self.sweep(&input, p) {
                 Some(Sweep::Blocked) => return stop(self, out, StepStatus::Blocked),
-                Some(Sweep::Escape(v)) => {
-                    out.linear = v;
-                    return stop(self, out, StepStatus::Rotating);
-                }
-                None => {}
+                Some(Sweep::Escape(v)) => out.linear = v,
+                None => out.angular = clamp_turn(p.rotate_gain * yaw_error, yaw_error, p, dt),
             }
-            out.angular = clamp_turn(p.rotate_gain * yaw_error, yaw_error, p, dt);
+            if self.people_closer(&input, out.linear, out.angular, p) {
+                (out.linear, out.angular) = (0.0, 0.0);
+            }
             return stop(self, out, StepStatus::Rotating);
         }
         if distance <= p.arrive_m || (distance <= goal.position_tolerance && goal_base.x <= p.arrive_m) {
@@ -745,18 +825,17 @@ impl RobotState {
         self.rotating = bearing.abs() > exit;
         self.aligned |= !self.rotating;
         if self.rotating {
-            match self.sweep(p) {
+            match self.sweep(&input, p) {
                 Some(Sweep::Blocked) => {
                     self.log_blocked(&input, p.sweep_radius_m, "a turn in place is blocked");
                     return stop(self, out, StepStatus::Blocked);
                 }
-                Some(Sweep::Escape(v)) => {
-                    out.linear = v;
-                    return stop(self, out, StepStatus::Rotating);
-                }
-                None => {}
+                Some(Sweep::Escape(v)) => out.linear = v,
+                None => out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p, dt),
             }
-            out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p, dt);
+            if self.people_closer(&input, out.linear, out.angular, p) {
+                (out.linear, out.angular) = (0.0, 0.0);
+            }
             return stop(self, out, StepStatus::Rotating);
         }
 
@@ -797,13 +876,21 @@ impl RobotState {
         } else {
             (self.last_speed - p.max_accel * dt).max(0.0).min(target)
         };
-        let (v, w) = self.guard(v, out.angular, dt, p);
+        let (v, w) = self.guard(v, out.angular, dt, p, &|_, _| true);
         if v == 0.0 && w == 0.0 && distance <= goal.position_tolerance {
             // As close as the body fits.
             self.rotating = false;
             out.angular = 0.0;
             return stop(self, out, StepStatus::Reached);
         }
+        let (v, w) = if self.people_closer(&input, v, w, p) {
+            // Yield to a walker: the parts of the command that keep clear of
+            // them, or a stop; waiting for people is no lack of progress.
+            self.progress = None;
+            self.guard(v, w, dt, p, &|v, w| !self.people_closer(&input, v, w, p))
+        } else {
+            (v, w)
+        };
         out.linear = v;
         out.angular = w;
         self.last_path_odom = sel.points.iter().step_by(5).map(|q| input.pose.transform(q)).collect();
@@ -898,7 +985,7 @@ mod tests {
 
     #[test]
     fn remembered_cells_are_forgotten_only_where_the_depth_reached_them() {
-        let wall = Cell { x: 2.0, y: 0.5, blocking: 3, low: false, no_go: false };
+        let wall = Cell { x: 2.0, y: 0.5, blocking: 3, low: false, no_go: false, person: 0 };
         let bearing = 0.5_f64.atan2(2.0);
         let seen_wall = ObstacleCloud { cells: vec![wall], ..frame(2.0, None) };
         let mut state = RobotState::default();
@@ -925,7 +1012,7 @@ mod tests {
         // its bearing reaches 4 m (the floor and the walls beyond), but the
         // floor shows in the image only from 1.16 m on.
         let view = View { floor_from_m: 1.16, camera_x_m: 0.3, camera_z_m: 0.6, ..view_ahead() };
-        let cable = Cell { x: 0.9, y: 0.1, blocking: 0, low: false, no_go: true };
+        let cable = Cell { x: 0.9, y: 0.1, blocking: 0, low: false, no_go: true, person: 0 };
         let remembered = |state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View| {
             merged_in_view(state, cloud, stamp, view).len()
         };
@@ -952,7 +1039,7 @@ mod tests {
         assert!((view.top_from(0.30) - 0.73).abs() < 1e-9, "{}", view.top_from(0.30));
         assert_eq!(view.top_from(0.0), 1.16);
         assert_eq!(view.top_from(1.5), 0.3, "taller than the camera: in view from the camera on");
-        let bottle = Cell { x: 0.7, y: -0.1, blocking: 3, low: false, no_go: false };
+        let bottle = Cell { x: 0.7, y: -0.1, blocking: 3, low: false, no_go: false, person: 0 };
         let mut state = RobotState::default();
         let seen =
             |state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64| merged_in_view(state, cloud, stamp, view);
@@ -992,8 +1079,8 @@ mod tests {
     #[test]
     fn a_cell_that_appeared_in_free_space_is_moving_and_soon_forgotten_out_of_view() {
         // Beside the robot, outside the ±43° view: only the memory holds it.
-        let person = Cell { x: 0.2, y: 1.0, blocking: 3, low: false, no_go: false };
-        let sofa = Cell { x: -0.2, y: 1.0, blocking: 3, low: false, no_go: false };
+        let person = Cell { x: 0.2, y: 1.0, blocking: 3, low: false, no_go: false, person: 0 };
+        let sofa = Cell { x: -0.2, y: 1.0, blocking: 3, low: false, no_go: false, person: 0 };
         let mut state = RobotState::default();
         // The sofa was there from the first frame; the space where the person
         // now stands was seen free (depth reached 4 m all round).
@@ -1032,13 +1119,13 @@ mod tests {
                 let (x, y) =
                     ((hit.x / 0.05).floor() as f32 * 0.05 + 0.025, (hit.y / 0.05).floor() as f32 * 0.05 + 0.025);
                 if !cells.iter().any(|q| q.x == x && q.y == y) {
-                    cells.push(Cell { x, y, blocking: 3, low: false, no_go: false });
+                    cells.push(Cell { x, y, blocking: 3, low: false, no_go: false, person: 0 });
                 }
             } else {
                 seen.record(10.0 * dir.x, 10.0 * dir.y);
             }
         }
-        ObstacleCloud { cells, raw_points: 0, seen: Some(seen) }
+        ObstacleCloud { cells, raw_points: 0, seen: Some(seen), people: vec![] }
     }
 
     #[test]
@@ -1106,7 +1193,8 @@ mod tests {
     }
 
     fn with_cells(cells: &[(f32, f32)]) -> RobotState {
-        let cells = cells.iter().map(|&(x, y)| Cell { x, y, blocking: 3, low: false, no_go: false }).collect();
+        let cells =
+            cells.iter().map(|&(x, y)| Cell { x, y, blocking: 3, low: false, no_go: false, person: 0 }).collect();
         RobotState { cloud: ObstacleCloud { cells, ..ObstacleCloud::default() }, ..RobotState::default() }
     }
 
@@ -1118,32 +1206,32 @@ mod tests {
         // the front-left corner into it. Turning on the spot (one frame) is
         // clear, so the forward part waits.
         let post = with_cells(&[(0.6, 0.45)]);
-        assert_eq!(post.guard(0.5, 1.0, 0.2, &p), (0.0, 1.0));
+        assert_eq!(post.guard(0.5, 1.0, 0.2, &p, &|_, _| true), (0.0, 1.0));
         // With the spot turn also blocked (a second post where the rear-right
         // corner swings), the
         // straight part alone is left.
         let posts = with_cells(&[(0.6, 0.45), (-0.45, -0.45)]);
-        assert_eq!(posts.guard(0.5, 1.0, 0.2, &p), (0.5, 0.0));
+        assert_eq!(posts.guard(0.5, 1.0, 0.2, &p, &|_, _| true), (0.5, 0.0));
         // Turning away from it is fine.
-        assert_eq!(post.guard(0.5, -1.0, 0.2, &p), (0.5, -1.0));
+        assert_eq!(post.guard(0.5, -1.0, 0.2, &p, &|_, _| true), (0.5, -1.0));
         // A wall straight ahead within a frame and the stopping distance: stop.
         let wall = with_cells(&[(0.8, -0.1), (0.8, 0.0), (0.8, 0.1)]);
-        assert_eq!(wall.guard(0.6, 0.0, 0.2, &p), (0.0, 0.0));
+        assert_eq!(wall.guard(0.6, 0.0, 0.2, &p, &|_, _| true), (0.0, 0.0));
         // Far enough ahead to stop before it: go on.
         let far = with_cells(&[(1.6, 0.0)]);
-        assert_eq!(far.guard(0.6, 0.0, 0.2, &p), (0.6, 0.0));
+        assert_eq!(far.guard(0.6, 0.0, 0.2, &p, &|_, _| true), (0.6, 0.0));
         // A cell the footprint already covers does not freeze the robot.
         let touching = with_cells(&[(0.3, 0.2)]);
-        assert_eq!(touching.guard(-0.15, 0.0, 0.2, &p), (-0.15, 0.0));
+        assert_eq!(touching.guard(-0.15, 0.0, 0.2, &p, &|_, _| true), (-0.15, 0.0));
         // One voxel is noise, not an obstacle.
         let ghost = RobotState {
             cloud: ObstacleCloud {
-                cells: vec![Cell { x: 0.7, y: 0.0, blocking: 1, low: false, no_go: false }],
+                cells: vec![Cell { x: 0.7, y: 0.0, blocking: 1, low: false, no_go: false, person: 0 }],
                 ..ObstacleCloud::default()
             },
             ..RobotState::default()
         };
-        assert_eq!(ghost.guard(0.5, 0.0, 0.2, &p), (0.5, 0.0));
+        assert_eq!(ghost.guard(0.5, 0.0, 0.2, &p, &|_, _| true), (0.5, 0.0));
     }
 
     #[test]
@@ -1154,13 +1242,17 @@ mod tests {
         // would swing the front-left corner over it, as it would into a post.
         let cable = |no_go| RobotState {
             cloud: ObstacleCloud {
-                cells: vec![Cell { x: 0.6, y: 0.45, blocking: 0, low: false, no_go }],
+                cells: vec![Cell { x: 0.6, y: 0.45, blocking: 0, low: false, no_go, person: 0 }],
                 ..ObstacleCloud::default()
             },
             ..RobotState::default()
         };
-        assert_eq!(cable(true).guard(0.5, 1.0, 0.2, &p), (0.0, 1.0));
-        assert_eq!(cable(false).guard(0.5, 1.0, 0.2, &p), (0.5, 1.0), "a bare floor cell is no reason to stop");
+        assert_eq!(cable(true).guard(0.5, 1.0, 0.2, &p, &|_, _| true), (0.0, 1.0));
+        assert_eq!(
+            cable(false).guard(0.5, 1.0, 0.2, &p, &|_, _| true),
+            (0.5, 1.0),
+            "a bare floor cell is no reason to stop"
+        );
         // A goal whose footprint would lie on it is moved sideways off it.
         assert!(!cable(true).footprint_clear_at(&Vector2::new(0.6, 0.2), 0.0, &p));
         assert!(cable(true).footprint_clear_at(&Vector2::new(0.6, -0.0), 0.0, &p));
@@ -1170,12 +1262,43 @@ mod tests {
     fn a_remembered_cell_counts_farther_out_for_a_turn_in_place() {
         let p = FollowParams::default();
         // 0.67 m behind-right: outside the 0.65 m disc, inside 0.70 m.
-        let cell = Cell { x: -0.4, y: -0.5375, blocking: 10, low: false, no_go: false };
+        let cell = Cell { x: -0.4, y: -0.5375, blocking: 10, low: false, no_go: false, person: 0 };
         let cloud = ObstacleCloud { cells: vec![cell], ..ObstacleCloud::default() };
         let mut state = RobotState { cloud, measured_cells: 1, ..RobotState::default() };
-        assert_eq!(state.sweep(&p), None, "measured this frame: the turn may go");
+        let empty = ObstacleCloud::default();
+        let input = StepInput {
+            stamp: 0.0,
+            pose: Pose2::new(0.0, 0.0, 0.0),
+            goal: GoalSpec {
+                pose: Pose2::new(0.0, 0.0, 3.0),
+                position_tolerance: 0.3,
+                yaw_tolerance: 0.2,
+                rotation_only: true,
+            },
+            cloud: &empty,
+            max_speed: 0.0,
+            view: view_ahead(),
+        };
+        assert_eq!(state.sweep(&input, &p), None, "measured this frame: the turn may go");
         state.measured_cells = 0;
-        assert_eq!(state.sweep(&p), Some(Sweep::Escape(p.escape_speed)), "remembered: move away first");
+        assert_eq!(state.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "remembered: move away first");
+        // A person standing 0.9 m to the left (their body's edge 0.6 m off,
+        // the cells of this frame outside the disc): people get 0.3 m more.
+        let seen = |at: Vector2<f64>, frames: u32| {
+            let mut state = RobotState::default();
+            for k in 0..frames {
+                state.people.update(-0.2 * f64::from(frames - k), &[Some(at)], &p.people);
+            }
+            state
+        };
+        let beside = seen(Vector2::new(0.0, 0.9), 3);
+        assert_eq!(beside.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "a person beside: move away first");
+        assert_eq!(seen(Vector2::new(0.0, 1.0), 3).sweep(&input, &p), None, "a person 1.0 m off: the turn may go");
+        assert_eq!(
+            seen(Vector2::new(0.0, 0.9), 1).sweep(&input, &p),
+            None,
+            "one box (a false positive?) is no person yet"
+        );
     }
 
     #[test]

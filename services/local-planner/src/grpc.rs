@@ -10,6 +10,7 @@ use vlnav_proto::v1::local_planner_service_server::LocalPlannerService;
 use vlnav_runtime::actor::{ActorGone, Mailbox};
 
 use crate::actor::{Msg, StepReply, StepRequest};
+use crate::cloud::PixelBox;
 use crate::control::StepStatus;
 
 /// Every way a local-planner request can fail.
@@ -71,6 +72,28 @@ pub fn step_request(r: pb::PlanStepRequest, depth_defaults: DepthDefaults) -> Re
         }
         no_go.push([p.x, p.y, p.z]);
     }
+    if r.people.len() > usize::from(u8::MAX) {
+        return Err(invalid("people", format!("holds {} boxes; at most 255 people per frame", r.people.len())));
+    }
+    let mut people = Vec::with_capacity(r.people.len());
+    for (i, b) in r.people.iter().enumerate() {
+        let finite = [b.x_min, b.y_min, b.x_max, b.y_max].iter().all(|v| v.is_finite());
+        if !(finite && b.x_min <= b.x_max && b.y_min <= b.y_max) {
+            return Err(invalid(
+                &format!("people[{i}]"),
+                format!(
+                    "must be a finite pixel box with x_min ≤ x_max and y_min ≤ y_max, got ({}, {}, {}, {})",
+                    b.x_min, b.y_min, b.x_max, b.y_max
+                ),
+            ));
+        }
+        people.push(PixelBox {
+            x_min: f64::from(b.x_min),
+            y_min: f64::from(b.y_min),
+            x_max: f64::from(b.x_max),
+            y_max: f64::from(b.y_max),
+        });
+    }
     let depth_mm = std::mem::take(&mut frame.depth.as_mut().expect("checked above").data_mm);
     Ok(StepRequest {
         robot_id: r.robot_id,
@@ -80,6 +103,7 @@ pub fn step_request(r: pb::PlanStepRequest, depth_defaults: DepthDefaults) -> Re
         depth_mm,
         goal,
         no_go,
+        people,
         max_speed: r.max_speed,
     })
 }

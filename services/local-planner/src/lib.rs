@@ -15,6 +15,7 @@ pub mod control;
 pub mod grpc;
 pub mod lookup;
 pub mod paths;
+pub mod people;
 pub mod planner;
 
 use std::sync::Arc;

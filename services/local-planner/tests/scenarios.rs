@@ -441,3 +441,73 @@ fn a_move_ends_on_its_goal_not_at_the_tolerance_circle() {
     // Never past the goal by more than the arrival band.
     assert!(run.poses.iter().all(|p| p.x <= 4.0 + 0.03), "overshot");
 }
+
+/// A person's column of points at `at` (base_link), boxed by the detector:
+/// their cells marked as the frame's first person, standing at `at`.
+fn person_frame(builder: &mut CloudBuilder, at: (f64, f64)) -> vlnav_local_planner::cloud::ObstacleCloud {
+    let points: Vec<[f64; 3]> = (0..20)
+        .flat_map(|k| {
+            let z = 0.2 + 0.05 * f64::from(k);
+            [[at.0, at.1, z], [at.0 + 0.05, at.1 + 0.05, z], [at.0 + 0.05, at.1 - 0.05, z]]
+        })
+        .collect();
+    let mut cloud = builder.from_points(&points, &[]);
+    for c in &mut cloud.cells {
+        c.person = 1;
+    }
+    cloud.people = vec![Some(nalgebra::Vector2::new(at.0, at.1))];
+    cloud
+}
+
+#[test]
+fn a_turn_in_place_waits_while_a_walking_person_crosses_within_reach() {
+    let params = FollowParams::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    // The goal lies behind the robot, so it turns in place; a person crosses
+    // 0.85 m ahead of its centre at 1.1 m/s, from its right to its left.
+    // The robot's pose is held so every frame sees the person.
+    let behind = goal_at(-3.0, 0.1, 0.3);
+    let mut state = RobotState::default();
+    let mut turning = Vec::new();
+    for k in 0..25 {
+        let stamp = f64::from(k) * DT;
+        let cloud = person_frame(&mut builder, (0.85, -2.0 + 1.1 * stamp));
+        let input = StepInput {
+            stamp,
+            pose: Pose2::new(0.0, 0.0, 0.0),
+            goal: behind,
+            cloud: &cloud,
+            max_speed: 0.0,
+            view: VIEW,
+        };
+        let out = state.step(planner(), &params, input);
+        assert_eq!(out.status, StepStatus::Rotating, "frame {k}: {out:?}");
+        turning.push(out.angular.abs() > 1e-9);
+    }
+    // Before a velocity is measured (two sightings 0.4 s apart) the turn
+    // goes ahead; once the person is known to walk, it waits while turning
+    // would bring a corner nearer them than standing still, and goes on
+    // once they have walked past.
+    assert!(turning[..2].iter().all(|t| *t), "{turning:?}");
+    assert!(turning[2..12].iter().any(|t| !t), "waits while they come within reach: {turning:?}");
+    assert!(turning[20..].iter().all(|t| *t), "turns once they are past: {turning:?}");
+
+    // The same person standing 1.1 m ahead: the turn goes ahead. (Within
+    // 0.65 m + 0.3 m the turn in place first moves away from a person,
+    // walking or not: people sway and step while the corners swing.)
+    let mut state = RobotState::default();
+    for k in 0..10 {
+        let stamp = f64::from(k) * DT;
+        let cloud = person_frame(&mut builder, (1.1, 0.0));
+        let input = StepInput {
+            stamp,
+            pose: Pose2::new(0.0, 0.0, 0.0),
+            goal: behind,
+            cloud: &cloud,
+            max_speed: 0.0,
+            view: VIEW,
+        };
+        let out = state.step(planner(), &params, input);
+        assert!(out.angular.abs() > 1e-9, "frame {k}: a standing person out of the sweep holds nothing: {out:?}");
+    }
+}

@@ -94,7 +94,14 @@ fn goal(x: f64, y: f64) -> pb::Goal {
 }
 
 fn request(robot: &str, f: pb::RgbdFrame, g: pb::Goal) -> pb::PlanStepRequest {
-    pb::PlanStepRequest { robot_id: robot.into(), frame: Some(f), goal: Some(g), no_go_points: vec![], max_speed: 0.0 }
+    pb::PlanStepRequest {
+        robot_id: robot.into(),
+        frame: Some(f),
+        goal: Some(g),
+        no_go_points: vec![],
+        max_speed: 0.0,
+        people: vec![],
+    }
 }
 
 fn at(x: f64, y: f64, theta: f64) -> pb::Pose2D {
@@ -269,6 +276,32 @@ async fn bad_requests_name_the_field() {
             "no_go_points[0]",
         ),
         (pb::PlanStepRequest { max_speed: -1.0, ..ok() }, "max_speed"),
+        (
+            pb::PlanStepRequest {
+                people: vec![pb::BoundingBox {
+                    x_min: 40.0,
+                    y_min: 10.0,
+                    x_max: 20.0,
+                    y_max: 90.0,
+                    ..Default::default()
+                }],
+                ..ok()
+            },
+            "people[0]",
+        ),
+        (
+            pb::PlanStepRequest {
+                people: vec![pb::BoundingBox {
+                    x_min: f32::NAN,
+                    y_min: 10.0,
+                    x_max: 20.0,
+                    y_max: 90.0,
+                    ..Default::default()
+                }],
+                ..ok()
+            },
+            "people[0]",
+        ),
         (
             {
                 let mut r = ok();

@@ -1,0 +1,298 @@
+//! People tracked from the detector's boxes, in `odom`.
+//!
+//! The depth image alone cannot tell a person from a post: a cell is known to
+//! move only where a frame a moment earlier saw free space behind it
+//! (`control.rs`), and a person first seen while the camera turns, or one
+//! who walks beside the robot at the edge of the view, is never caught that
+//! way. The detector's person boxes say what is a person; where the person
+//! stands comes from the depth behind the box (`cloud.rs`), and this tracker
+//! links those places from frame to frame by nearest neighbour within a gate
+//! that grows with the time since the track was last seen. A track's
+//! velocity is its displacement over its last `window_s` of sightings
+//! (at least `min_sightings` of them, spanning at least `min_span_s`, so
+//! that centroid noise between two frames does not make a walker, nor two
+//! false positives a person; the detector misses a person at the edge of
+//! the view in many frames, more while the camera turns, so the window is
+//! long); faster than `walking_mps` it walks, and it counts as
+//! a walker for `keep_s` after (a person turning round at the end of their
+//! way, or pausing beside the robot, slows for a moment and walks on).
+//!
+//! What the local planner does with it (services/local-planner/README.md):
+//! no command may bring the robot's body nearer a walker, carried on at
+//! their velocity for `horizon_s`, than their radius — the camera looks only
+//! ahead, and a person who crossed in front of a turning robot walks on past
+//! its side. People change course, so the radius grows by `spread_mps` per
+//! second since last seen (up to `spread_max_m`).
+
+use std::collections::VecDeque;
+
+use nalgebra::Vector2;
+use vlnav_geometry::Pose2;
+
+/// Tracking and prediction settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PeopleParams {
+    /// A sighting joins a track within this distance of the track's
+    /// predicted place, m, plus `gate_speed_mps` per second since the track
+    /// was last seen (up to `gate_max_m`).
+    pub gate_m: f64,
+    pub gate_speed_mps: f64,
+    pub gate_max_m: f64,
+    /// Sightings kept per track, s of sensor time.
+    pub window_s: f64,
+    /// The shortest span of sightings a velocity is measured over, s.
+    pub min_span_s: f64,
+    /// Sightings within `window_s` before a track counts as a person at
+    /// all: the detector's false positives (a person in 1 frame of 17 in
+    /// the calibrated profile, anywhere in the image) seldom repeat in one
+    /// place.
+    pub min_sightings: usize,
+    /// Faster than this a person walks, m/s (people walk at 0.8–1.5 m/s;
+    /// a standing person's centroid wanders by a few cm between frames).
+    pub walking_mps: f64,
+    /// A track unseen for this long is dropped, s.
+    pub keep_s: f64,
+    /// How far ahead a walking person's course and the robot's command are
+    /// carried on, s.
+    pub horizon_s: f64,
+    /// A person's radius for the reach test, m.
+    pub radius_m: f64,
+    /// How fast the reach grows with the time ahead, m/s, and its cap, m.
+    pub spread_mps: f64,
+    pub spread_max_m: f64,
+}
+
+impl Default for PeopleParams {
+    fn default() -> Self {
+        Self {
+            gate_m: 0.5,
+            gate_speed_mps: 1.5,
+            gate_max_m: 1.5,
+            window_s: 1.5,
+            min_span_s: 0.4,
+            min_sightings: 3,
+            walking_mps: 0.35,
+            keep_s: 2.0,
+            horizon_s: 1.0,
+            radius_m: 0.3,
+            spread_mps: 0.5,
+            spread_max_m: 0.3,
+        }
+    }
+}
+
+#[derive(Clone, Debug)]
+struct Track {
+    /// (stamp, odom position), oldest first.
+    seen: VecDeque<(f64, Vector2<f64>)>,
+    /// When the track was last measured walking.
+    walked: Option<f64>,
+}
+
+impl Track {
+    fn last(&self) -> (f64, Vector2<f64>) {
+        *self.seen.back().expect("a track holds at least one sighting")
+    }
+
+    fn confirmed(&self, p: &PeopleParams) -> bool {
+        self.seen.len() >= p.min_sightings
+    }
+
+    /// Velocity over the kept sightings, m/s (`None`: too few or too short a span).
+    fn velocity(&self, p: &PeopleParams) -> Option<Vector2<f64>> {
+        let (&(t0, a), &(t1, b)) = (self.seen.front()?, self.seen.back()?);
+        (self.confirmed(p) && t1 - t0 >= p.min_span_s).then(|| (b - a) / (t1 - t0))
+    }
+
+    /// Whether the track walks now or did within `keep_s` before `stamp`.
+    fn walker(&self, stamp: f64, p: &PeopleParams) -> bool {
+        self.walked.is_some_and(|t| stamp - t <= p.keep_s)
+    }
+
+    /// Where the track is expected at `stamp`: a walker carried on at their
+    /// velocity, anyone else where last seen.
+    fn predicted(&self, stamp: f64, p: &PeopleParams) -> Vector2<f64> {
+        let (t, at) = self.last();
+        let v = self.velocity(p).filter(|_| self.walker(stamp, p)).unwrap_or_else(Vector2::zeros);
+        at + v * (stamp - t).max(0.0)
+    }
+}
+
+/// The people one robot has seen lately.
+#[derive(Clone, Debug, Default)]
+pub struct Tracker {
+    tracks: Vec<Track>,
+}
+
+impl Tracker {
+    /// Adds this frame's people (`odom`; `None` where a box held no depth)
+    /// and returns, per person, whether they walk now.
+    pub fn update(&mut self, stamp: f64, people: &[Option<Vector2<f64>>], p: &PeopleParams) -> Vec<bool> {
+        self.tracks.retain(|t| stamp - t.last().0 <= p.keep_s && t.last().0 <= stamp);
+        // Nearest pairs first, each track and person used once.
+        let mut pairs: Vec<(f64, usize, usize)> = Vec::new();
+        for (i, at) in people.iter().enumerate() {
+            let Some(at) = at else { continue };
+            for (j, t) in self.tracks.iter().enumerate() {
+                let gate = (p.gate_m + p.gate_speed_mps * (stamp - t.last().0)).min(p.gate_max_m);
+                let d = (t.predicted(stamp, p) - at).norm();
+                if d <= gate {
+                    pairs.push((d, i, j));
+                }
+            }
+        }
+        pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut track_of = vec![None; people.len()];
+        let mut taken = vec![false; self.tracks.len()];
+        for (_, i, j) in pairs {
+            if track_of[i].is_none() && !taken[j] {
+                track_of[i] = Some(j);
+                taken[j] = true;
+            }
+        }
+        let mut walking = vec![false; people.len()];
+        for (i, at) in people.iter().enumerate() {
+            let Some(at) = *at else { continue };
+            let j = match track_of[i] {
+                Some(j) => j,
+                None => {
+                    self.tracks.push(Track { seen: VecDeque::new(), walked: None });
+                    self.tracks.len() - 1
+                }
+            };
+            let t = &mut self.tracks[j];
+            t.seen.push_back((stamp, at));
+            while t.seen.front().is_some_and(|&(s, _)| stamp - s > p.window_s) {
+                t.seen.pop_front();
+            }
+            walking[i] = t.velocity(p).is_some_and(|v| v.norm() >= p.walking_mps);
+            if walking[i] {
+                t.walked = Some(stamp);
+            }
+        }
+        walking
+    }
+
+    /// Every walker's expected place `ahead` s after `stamp`, carried on
+    /// at their velocity (and no further than `keep_s` past their last
+    /// sighting), in `pose`'s frame, with how near the robot's body may come
+    /// to it: their radius plus how far they may have strayed.
+    pub fn walkers_ahead(&self, stamp: f64, ahead: f64, pose: &Pose2, p: &PeopleParams) -> Vec<(Vector2<f64>, f64)> {
+        self.tracks
+            .iter()
+            .filter(|t| t.walker(stamp, p))
+            .map(|t| {
+                let v = t.velocity(p).unwrap_or_else(Vector2::zeros);
+                let (seen, at) = t.last();
+                let dt = (stamp - seen + ahead).min(p.keep_s);
+                (pose.inverse_transform(&(at + v * dt)), p.radius_m + (p.spread_mps * dt).min(p.spread_max_m))
+            })
+            .collect()
+    }
+
+    /// Where everyone seen within `keep_s` (and often enough to be sure) is expected at `stamp`, in
+    /// `pose`'s frame (walkers carried on, others where last seen).
+    pub fn people_at(&self, stamp: f64, pose: &Pose2, p: &PeopleParams) -> Vec<Vector2<f64>> {
+        self.tracks
+            .iter()
+            .filter(|t| t.confirmed(p))
+            .map(|t| pose.inverse_transform(&t.predicted(stamp.min(t.last().0 + p.keep_s), p)))
+            .collect()
+    }
+
+    /// Moves every track by `f` (odometry re-anchored: the people keep their
+    /// place relative to the robot).
+    pub fn reanchor(&mut self, f: impl Fn(&Vector2<f64>) -> Vector2<f64>) {
+        for t in &mut self.tracks {
+            for (_, at) in &mut t.seen {
+                *at = f(at);
+            }
+        }
+    }
+
+    pub fn clear(&mut self) {
+        self.tracks.clear();
+    }
+
+    pub fn len(&self) -> usize {
+        self.tracks.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tracks.is_empty()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn p() -> PeopleParams {
+        PeopleParams::default()
+    }
+
+    #[test]
+    fn a_person_who_walks_is_told_from_one_who_stands() {
+        let mut t = Tracker::default();
+        let mut walker = Vec::new();
+        let mut stander = Vec::new();
+        for k in 0..10 {
+            let s = f64::from(k) * 0.2;
+            // One walks across at 1 m/s; the other stands, their centroid
+            // wandering by ±4 cm from frame to frame.
+            let jitter = if k % 2 == 0 { 0.04 } else { -0.04 };
+            let w = t.update(s, &[Some(Vector2::new(3.0, -1.0 + s)), Some(Vector2::new(2.0, 1.5 + jitter))], &p());
+            walker.push(w[0]);
+            stander.push(w[1]);
+        }
+        assert_eq!(t.len(), 2, "two people, two tracks");
+        assert!(walker[..2].iter().all(|w| !w), "not walking before a velocity is measured: {walker:?}");
+        assert!(walker[2..].iter().all(|w| *w), "walking once three sightings span 0.4 s: {walker:?}");
+        assert!(stander.iter().all(|w| !w), "the standing person never walks: {stander:?}");
+    }
+
+    #[test]
+    fn a_walker_is_carried_on_until_dropped() {
+        let mut t = Tracker::default();
+        let robot = Pose2::new(0.0, 0.0, 0.0);
+        // Crossing 1.2 m in front of the robot, from its right to its left, at 1.1 m/s.
+        for k in 0..5 {
+            let s = f64::from(k) * 0.2;
+            t.update(s, &[Some(Vector2::new(1.2, -2.0 + 1.1 * s))], &p());
+        }
+        // Last seen at (1.2, −1.12) at 0.8 s; half a second later, unseen:
+        // 0.55 m on, and 0.25 m of straying on top of their radius.
+        let ahead = t.walkers_ahead(1.0, 0.3, &robot, &p());
+        assert_eq!(ahead.len(), 1);
+        let (at, reach) = ahead[0];
+        assert!((at - Vector2::new(1.2, -0.57)).norm() < 0.02, "at {at:?}");
+        assert!((reach - 0.55).abs() < 1e-9, "reach {reach}");
+        // Carried on no further than 2 s past the last sighting.
+        let (at, reach) = t.walkers_ahead(2.5, 1.0, &robot, &p())[0];
+        assert!((at - Vector2::new(1.2, 1.08)).norm() < 0.02 && (reach - 0.6).abs() < 1e-9, "{at:?} {reach}");
+        t.update(3.0, &[], &p());
+        assert!(t.is_empty(), "unseen for longer than keep_s");
+    }
+
+    #[test]
+    fn a_standing_person_is_no_walker_however_near() {
+        let mut t = Tracker::default();
+        for k in 0..10 {
+            t.update(f64::from(k) * 0.2, &[Some(Vector2::new(0.9, 0.0))], &p());
+        }
+        assert!(t.walkers_ahead(2.0, 0.5, &Pose2::new(0.0, 0.0, 0.0), &p()).is_empty());
+    }
+
+    #[test]
+    fn two_people_crossing_keep_their_own_tracks() {
+        let mut t = Tracker::default();
+        let mut last = Vec::new();
+        for k in 0..10 {
+            let s = f64::from(k) * 0.2;
+            // They walk towards each other along x, 0.8 m apart across.
+            last = t.update(s, &[Some(Vector2::new(1.0 + s, 0.4)), Some(Vector2::new(4.0 - s, -0.4))], &p());
+        }
+        assert_eq!(t.len(), 2);
+        assert_eq!(last, vec![true, true]);
+    }
+}
