@@ -169,6 +169,35 @@ impl Projector {
         })
     }
 }
+/// An image box in pixel coordinates (`x_min ≤ u < x_max`, `y_min ≤ v < y_max`):
+/// a detector's box as the subgoal estimator and the local planner read it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PixelBox {
+    pub x_min: f64,
+    pub y_min: f64,
+    pub x_max: f64,
+    pub y_max: f64,
+}
+
+impl PixelBox {
+    pub fn centre(&self) -> (f64, f64) {
+        ((self.x_min + self.x_max) / 2.0, (self.y_min + self.y_max) / 2.0)
+    }
+
+    /// The box shrunk about its centre to `fraction` of its width and height.
+    pub fn central(&self, fraction: f64) -> PixelBox {
+        let (uc, vc) = self.centre();
+        let hw = (self.x_max - self.x_min) * fraction / 2.0;
+        let hh = (self.y_max - self.y_min) * fraction / 2.0;
+        PixelBox { x_min: uc - hw, y_min: vc - hh, x_max: uc + hw, y_max: vc + hh }
+    }
+
+    /// Whether the pixel (u, v) lies in the box.
+    pub fn contains(&self, u: f64, v: f64) -> bool {
+        u >= self.x_min && u < self.x_max && v >= self.y_min && v < self.y_max
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

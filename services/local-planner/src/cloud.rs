@@ -29,6 +29,7 @@
 
 use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::camera::Camera;
+pub use vlnav_geometry::camera::PixelBox;
 use vlnav_geometry::depth::DepthView;
 use vlnav_geometry::wrap_angle;
 
@@ -84,21 +85,6 @@ pub struct Cell {
     /// 0, or k when the frame's k-th person box covers one of the column's
     /// blocking points (index k − 1 of [`ObstacleCloud::people`]).
     pub person: u8,
-}
-
-/// A box around a person in the frame's image, pixels.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PixelBox {
-    pub x_min: f64,
-    pub y_min: f64,
-    pub x_max: f64,
-    pub y_max: f64,
-}
-
-impl PixelBox {
-    fn contains(&self, u: f64, v: f64) -> bool {
-        u >= self.x_min && u <= self.x_max && v >= self.y_min && v <= self.y_max
-    }
 }
 
 impl Cell {

@@ -44,28 +44,7 @@ pub fn move_goal(anchor: Pose2, f_dist: f64, yaw: f64, d_s: f64, p: &MoveParams)
     }
 }
 
-/// An image box in pixel coordinates (`x_min ≤ u < x_max`, `y_min ≤ v < y_max`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PixelBox {
-    pub x_min: f64,
-    pub y_min: f64,
-    pub x_max: f64,
-    pub y_max: f64,
-}
-
-impl PixelBox {
-    pub fn centre(&self) -> (f64, f64) {
-        ((self.x_min + self.x_max) / 2.0, (self.y_min + self.y_max) / 2.0)
-    }
-
-    /// The box shrunk about its centre to `fraction` of its width and height.
-    pub fn central(&self, fraction: f64) -> PixelBox {
-        let (uc, vc) = self.centre();
-        let hw = (self.x_max - self.x_min) * fraction / 2.0;
-        let hh = (self.y_max - self.y_min) * fraction / 2.0;
-        PixelBox { x_min: uc - hw, y_min: vc - hh, x_max: uc + hw, y_max: vc + hh }
-    }
-}
+pub use vlnav_geometry::camera::PixelBox;
 
 /// How the box depth is sampled.
 #[derive(Clone, Copy, Debug, PartialEq)]
