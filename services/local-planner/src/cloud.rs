@@ -198,6 +198,15 @@ impl ObstacleCloud {
     }
 }
 
+/// The multiples of `stride` below `n` within [`lo`, `hi`]: the sampled
+/// rows (or columns) of the cloud that fall in that span of the image.
+fn strided(lo: f64, hi: f64, n: usize, stride: usize) -> impl Iterator<Item = usize> {
+    let first = lo.max(0.0).ceil() as usize;
+    let first = first.div_ceil(stride) * stride;
+    let end = if hi < 0.0 { 0 } else { (hi.floor() as usize + 1).min(n) };
+    (first..end).step_by(stride)
+}
+
 /// Reusable downsampling buffers (a dense voxel bitmap around the robot).
 #[derive(Clone, Debug)]
 pub struct CloudBuilder {
@@ -332,15 +341,8 @@ impl CloudBuilder {
                 let (w, h) = (b.x_max - b.x_min, b.y_max - b.y_min);
                 let (u0, u1) = (b.x_min + 0.25 * w, b.x_max - 0.25 * w);
                 let (v0, v1) = (b.y_min + 0.15 * h, b.y_max - 0.15 * h);
-                let mut d: Vec<f64> = (0..depth.height())
-                    .step_by(stride)
-                    .filter(|&v| (v as f64) >= v0 && (v as f64) <= v1)
-                    .flat_map(|v| {
-                        (0..depth.width())
-                            .step_by(stride)
-                            .filter(move |&u| (u as f64) >= u0 && (u as f64) <= u1)
-                            .map(move |u| depth.mm(u, v) as f64)
-                    })
+                let mut d: Vec<f64> = strided(v0, v1, depth.height(), stride)
+                    .flat_map(|v| strided(u0, u1, depth.width(), stride).map(move |u| depth.mm(u, v) as f64))
                     .filter(|&z| z > 0.0 && z > lo && z < hi)
                     .collect();
                 if d.is_empty() {
