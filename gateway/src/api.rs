@@ -670,12 +670,20 @@ impl FleetService for Gateway {
 /// A stage call's error as the gateway's caller gets it. When the stage could
 /// not be reached or did not answer, the transport's words ("tcp connect
 /// error") do not say which service is down: the message names it, as the
-/// executor's stage failures do. The stage's own answers pass unchanged.
+/// executor's stage failures do. A server that does not implement the call
+/// is a deployment fault (the stage's address points at another server), not
+/// the gateway lacking the caller's method: it is INTERNAL and says so. The
+/// stage's own answers pass unchanged.
 fn stage_unreachable(stage: &'static str) -> impl FnOnce(Status) -> Status {
     move |s| match s.code() {
         tonic::Code::Unavailable | tonic::Code::DeadlineExceeded | tonic::Code::Cancelled | tonic::Code::Unknown => {
             Status::new(s.code(), format!("the {stage} service failed: {}", s.message()))
         }
+        tonic::Code::Unimplemented => Status::internal(format!(
+            "the server at the {stage} service's address does not implement the {stage} call \
+             (check the gateway's --{stage}-uri){}",
+            if s.message().is_empty() { String::new() } else { format!(": {}", s.message()) }
+        )),
         _ => s,
     }
 }
@@ -691,5 +699,12 @@ mod tests {
         assert_eq!(down.message(), "the planner service failed: tcp connect error");
         let refused = stage_unreachable("planner")(Status::invalid_argument("the instruction is empty"));
         assert_eq!(refused.message(), "the instruction is empty");
+        let elsewhere = stage_unreachable("planner")(Status::unimplemented(""));
+        assert_eq!(elsewhere.code(), tonic::Code::Internal);
+        assert_eq!(
+            elsewhere.message(),
+            "the server at the planner service's address does not implement the planner call \
+             (check the gateway's --planner-uri)"
+        );
     }
 }

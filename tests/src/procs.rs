@@ -119,10 +119,56 @@ pub fn binaries() -> anyhow::Result<PathBuf> {
         .map_err(|e| anyhow::anyhow!(e))
 }
 
-/// A free loopback port: bound, read and released (the caller binds it next).
+/// A free loopback port for a server this process starts next.
+///
+/// A port from `bind(…:0)` is released before the server binds it, and the
+/// kernel may hand it out again meanwhile: to another `bind(…:0)`, or as an
+/// outgoing connection's source port, since both draw from the ephemeral
+/// range. A server restarted on its port leaves the same gap while it is
+/// down. So the ports come from below the ephemeral range, where the kernel
+/// assigns none by itself, and this process never hands out one port twice.
 pub fn free_port() -> u16 {
-    let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1:0");
-    l.local_addr().expect("a bound address").port()
+    use std::sync::Mutex;
+    static NEXT: Mutex<Option<u32>> = Mutex::new(None);
+    let ephemeral_low = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
+        .ok()
+        .and_then(|s| s.split_whitespace().next()?.parse::<u32>().ok())
+        .unwrap_or(32768);
+    const LOW: u32 = 10_000;
+    if ephemeral_low < LOW + 1_000 {
+        // No room below the ephemeral range: the kernel's choice, as before.
+        let l = std::net::TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1:0");
+        return l.local_addr().expect("a bound address").port();
+    }
+    let span = ephemeral_low - LOW;
+    let mut next = NEXT.lock().unwrap_or_else(|e| e.into_inner());
+    // Test processes running side by side start far apart.
+    let mut candidate = next.unwrap_or_else(|| std::process::id().wrapping_mul(7919) % span);
+    for _ in 0..span {
+        let port = (LOW + candidate % span) as u16;
+        candidate = (candidate + 1) % span;
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            *next = Some(candidate);
+            return port;
+        }
+    }
+    panic!("no free loopback port in {LOW}..{ephemeral_low}");
+}
+
+/// The gRPC service a server of `name` must report SERVING before it counts
+/// as started: a server of another kind on its port does not.
+fn service_name(name: &str) -> &'static str {
+    match name {
+        "ingress" => "vlnav.v1.IngressService",
+        "planner" => "vlnav.v1.PlannerService",
+        "detector" => "vlnav.v1.DetectorService",
+        "reid" => "vlnav.v1.ReidService",
+        "segmenter" => "vlnav.v1.SegmenterService",
+        "subgoal" => "vlnav.v1.SubgoalService",
+        "local-planner" => "vlnav.v1.LocalPlannerService",
+        GATEWAY => "vlnav.v1.MissionService",
+        _ => "",
+    }
 }
 
 /// One server process: how to start it, and the running child.
@@ -199,7 +245,8 @@ impl Service {
         all[all.len().saturating_sub(lines)..].join("\n")
     }
 
-    /// Waits until it answers its gRPC health check.
+    /// Waits until it answers its gRPC health check for its own service, and
+    /// is still running after: the answer came from this process.
     async fn ready(&mut self, within: Duration) -> anyhow::Result<()> {
         let deadline = tokio::time::Instant::now() + within;
         let uri = format!("http://{}", self.addr());
@@ -210,9 +257,10 @@ impl Service {
             }
             if let Ok(ch) = channel_with(&uri, &ClientSecurity::none()) {
                 let mut health = tonic_health::pb::health_client::HealthClient::new(ch);
-                let req = tonic_health::pb::HealthCheckRequest { service: String::new() };
+                let req = tonic_health::pb::HealthCheckRequest { service: service_name(&self.name).into() };
                 if let Ok(Ok(r)) = tokio::time::timeout(Duration::from_secs(2), health.check(req)).await
                     && r.into_inner().status == tonic_health::pb::health_check_response::ServingStatus::Serving as i32
+                    && self.exited().is_none()
                 {
                     return Ok(());
                 }
