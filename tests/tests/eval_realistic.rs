@@ -30,14 +30,19 @@ use vlnav_eval::metrics::Mode;
 /// Crossing trial 0 stops 2 cm nearer since the robot waits for walking
 /// people (services/local-planner/src/people.rs): its way to the plant
 /// is no longer the same.
+/// Crossing trial 1 stops 3 cm farther and symmetric trials 0 and 1 2 and
+/// 1 cm farther since the local planner keeps its obstacle memory from one
+/// step of a mission to the next (gateway/src/executor/machine.rs,
+/// `StartStep::forget`): the ways to the landmarks, and so the views the
+/// target's estimate is fused from, are no longer the same.
 const PINNED: &str = "crossing 0 succeeded true true +0.02 0 0\n\
-crossing 1 succeeded true true +0.02 0 0\n\
+crossing 1 succeeded true true +0.05 0 0\n\
 garage 0 succeeded true true +0.02 0 0\n\
 garage 1 succeeded true true +0.04 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\
 precise 1 succeeded true true +0.03 0 0\n\
-symmetric 0 succeeded true true +0.06 0 0\n\
-symmetric 1 succeeded true true +0.07 0 0";
+symmetric 0 succeeded true true +0.08 0 0\n\
+symmetric 1 succeeded true true +0.08 0 0";
 
 fn args(out: &std::path::Path) -> vlnav_eval::EvalArgs {
     vlnav_eval::EvalArgs {

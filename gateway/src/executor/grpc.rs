@@ -59,13 +59,15 @@ impl Stages<'_> {
     pub async fn call(&mut self, request: Request) -> Result<Reply, StageFailure> {
         let pipeline = self.pipeline;
         match request {
-            Request::StartStep { move_goal, .. } => {
-                pipeline
-                    .local_planner
-                    .clone()
-                    .reset_robot(self.deadline(pb::ResetRobotRequest { robot_id: self.robot_id.to_string() }))
-                    .await
-                    .map_err(self.failed("local-planner"))?;
+            Request::StartStep { move_goal, forget, .. } => {
+                if forget {
+                    pipeline
+                        .local_planner
+                        .clone()
+                        .reset_robot(self.deadline(pb::ResetRobotRequest { robot_id: self.robot_id.to_string() }))
+                        .await
+                        .map_err(self.failed("local-planner"))?;
+                }
                 let goal = match move_goal {
                     Some(q) => Some(self.move_goal(q).await?),
                     None => None,

@@ -119,9 +119,15 @@ pub struct MoveQuery {
 /// What the machine needs from the stages, about the current frame.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Request {
-    /// A step begins: reset the local planner's state for this robot, then,
-    /// for a MOVE, turn `move_goal` into an odometry goal.
-    StartStep { index: u32, action: Action, desc: String, move_goal: Option<MoveQuery> },
+    /// A step begins: for a MOVE, turn `move_goal` into an odometry goal.
+    /// With `forget` (the mission's first step) the local planner first
+    /// forgets this robot's state. Later steps keep it: odometry runs on
+    /// through a mission (a step's goals are relative to its anchor pose;
+    /// the robot's `odom` frame is never reset), and what stood behind the
+    /// robot when one step ended still stands there when the next begins —
+    /// the turn in place that opens a step must know it
+    /// (services/local-planner/README.md, obstacle memory).
+    StartStep { index: u32, action: Action, desc: String, move_goal: Option<MoveQuery>, forget: bool },
     /// Segment the frame into no-go points and detect: for a FIND every
     /// class at `min_score` (the step's `class_id` is the target; the others
     /// vote against it), otherwise people only; all at once. The adapter
@@ -693,6 +699,8 @@ pub struct Mission {
     /// The question waiting for an answer, and the failure that caused it.
     awaiting: Option<(Question, String)>,
     outage: Option<Outage>,
+    /// A step has been started (the local planner holds this mission's state).
+    started: bool,
     /// The frame being handled and where its work stands.
     frame: Frame,
     pending: Option<Pending>,
@@ -719,6 +727,7 @@ impl Mission {
                 (q, reason)
             }),
             outage: None,
+            started: false,
             frame: Frame::default(),
             pending: None,
             events: Vec::new(),
@@ -850,8 +859,14 @@ impl Mission {
             yaw: step.yaw,
             d_s: step.d_s,
         });
-        let request =
-            Request::StartStep { index: self.index as u32, action: step.action, desc: step.desc.clone(), move_goal };
+        let forget = !std::mem::replace(&mut self.started, true);
+        let request = Request::StartStep {
+            index: self.index as u32,
+            action: step.action,
+            desc: step.desc.clone(),
+            move_goal,
+            forget,
+        };
         self.call(Pending::Start { step, anchor, d_s }, request)
     }
 

@@ -155,7 +155,13 @@ fn a_move_starts_perceives_drives_and_completes_when_reached() {
     assert_eq!(
         asked,
         vec![
-            Request::StartStep { index: 0, action: Action::Move, desc: "Move".into(), move_goal: Some(query) },
+            Request::StartStep {
+                index: 0,
+                action: Action::Move,
+                desc: "Move".into(),
+                move_goal: Some(query),
+                forget: true
+            },
             Request::Perceive { detect: None },
             Request::Drive { goal: goal_of(&query) },
         ]
@@ -197,6 +203,18 @@ fn a_move_after_a_move_turns_from_that_moves_course_not_the_arrival_heading() {
         }
         other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn only_the_missions_first_step_makes_the_local_planner_forget() {
+    // A turn that opens the second step must know what the first one passed.
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(3.0, 0.0), mv(0.0, -FRAC_PI_6)]);
+    let (_, asked) = cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 3.0)));
+    assert!(matches!(asked[0], Request::StartStep { index: 0, forget: true, .. }), "{asked:?}");
+    cycle(&mut m, &p, at(3.0, 3.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)));
+    let (_, asked) = cycle(&mut m, &p, at(3.2, 3.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.0, 0.5)));
+    assert!(matches!(asked[0], Request::StartStep { index: 1, forget: false, .. }), "{asked:?}");
 }
 
 #[test]

@@ -53,7 +53,11 @@
 //!   remembered, that it does not already cover, the command is reduced — the turn alone, the straight part
 //!   alone, or a stop. A robot stopped by the guard within the goal's
 //!   position tolerance has reached it (as close as its body fits); farther
-//!   away, the progress watchdog takes over.
+//!   away it creeps straight on toward the goal's side at `escape_speed`
+//!   where the guard lets it (a path bending away from a zone beside the
+//!   robot swings the rear corner into it, and stopped there it would wait
+//!   for ever: `RobotState::creep`), and the progress watchdog takes over
+//!   where it cannot.
 //! - Goals beside obstacles: a goal whose footprint (the rectangle at the
 //!   goal, facing the goal's heading, plus `guard_margin_m`) would hold a
 //!   blocking or no-go cell — an approach goal on the line to a hydrant that stands
@@ -557,6 +561,18 @@ impl RobotState {
     }
 }
 
+impl RobotState {
+    /// What the robot does when the footprint guard stops every part of a
+    /// path's command: a path that bends away from a zone the robot stands
+    /// beside swings the rear corner into it, and stopped there it would
+    /// wait for ever. It creeps straight on (`escape_speed`) toward the
+    /// goal's side, where the guard lets it, until the turn is free.
+    fn creep(&self, goal_base: &Vector2<f64>, dt: f64, p: &FollowParams) -> (f64, f64) {
+        let v = if goal_base.x >= 0.0 { p.escape_speed } else { -p.escape_speed };
+        self.guard(v, 0.0, dt, p, &|_, _| true)
+    }
+}
+
 /// Side of the `odom` grid the memory keeps one cell per, m (the cloud's voxel).
 const MEMORY_VOXEL: f64 = 0.05;
 
@@ -883,6 +899,7 @@ impl RobotState {
             out.angular = 0.0;
             return stop(self, out, StepStatus::Reached);
         }
+        let (v, w) = if v == 0.0 && w == 0.0 { self.creep(&goal_base, dt, p) } else { (v, w) };
         let (v, w) = if self.people_closer(&input, v, w, p) {
             // Yield to a walker: the parts of the command that keep clear of
             // them, or a stop; waiting for people is no lack of progress.
@@ -1256,6 +1273,35 @@ mod tests {
         // A goal whose footprint would lie on it is moved sideways off it.
         assert!(!cable(true).footprint_clear_at(&Vector2::new(0.6, 0.2), 0.0, &p));
         assert!(cable(true).footprint_clear_at(&Vector2::new(0.6, -0.0), 0.0, &p));
+    }
+
+    #[test]
+    fn a_robot_beside_a_zone_creeps_on_when_the_turn_away_would_swing_its_rear_into_it() {
+        let p = FollowParams::default();
+        // A no-go rug along the left side, 0.40 m from the centre, from
+        // beside the robot to 0.7 m ahead (remembered: it is out of view).
+        let cells: Vec<Cell> = (0..9)
+            .flat_map(|i| {
+                (0..4).map(move |j| Cell {
+                    x: -0.1 + 0.1 * i as f32,
+                    y: 0.40 + 0.1 * j as f32,
+                    blocking: 0,
+                    low: false,
+                    no_go: true,
+                    person: 0,
+                })
+            })
+            .collect();
+        let state = RobotState { cloud: ObstacleCloud { cells, ..ObstacleCloud::default() }, ..RobotState::default() };
+        // Turning right on the spot swings the rear-left corner into the rug.
+        assert_eq!(state.guard(0.0, -1.57, 0.2, &p, &|_, _| true), (0.0, 0.0));
+        // Straight on keeps its distance: the robot creeps toward the goal.
+        assert_eq!(state.creep(&Vector2::new(3.4, 0.5), 0.2, &p), (p.escape_speed, 0.0));
+        assert_eq!(state.creep(&Vector2::new(-2.0, 0.0), 0.2, &p), (-p.escape_speed, 0.0));
+        // Not into something in the way.
+        let mut walled = state.clone();
+        walled.cloud.cells.push(Cell { x: 0.57, y: 0.0, blocking: 5, low: false, no_go: false, person: 0 });
+        assert_eq!(walled.creep(&Vector2::new(3.4, 0.5), 0.2, &p), (0.0, 0.0));
     }
 
     #[test]
