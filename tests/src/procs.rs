@@ -130,10 +130,13 @@ pub fn binaries() -> anyhow::Result<PathBuf> {
 pub fn free_port() -> u16 {
     use std::sync::Mutex;
     static NEXT: Mutex<Option<u32>> = Mutex::new(None);
-    let ephemeral_low = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
-        .ok()
-        .and_then(|s| s.split_whitespace().next()?.parse::<u32>().ok())
-        .unwrap_or(32768);
+    static EPHEMERAL_LOW: OnceLock<u32> = OnceLock::new();
+    let ephemeral_low = *EPHEMERAL_LOW.get_or_init(|| {
+        std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range")
+            .ok()
+            .and_then(|s| s.split_whitespace().next()?.parse::<u32>().ok())
+            .unwrap_or(32768)
+    });
     const LOW: u32 = 10_000;
     if ephemeral_low < LOW + 1_000 {
         // No room below the ephemeral range: the kernel's choice, as before.
@@ -158,15 +161,16 @@ pub fn free_port() -> u16 {
 /// The gRPC service a server of `name` must report SERVING before it counts
 /// as started: a server of another kind on its port does not.
 fn service_name(name: &str) -> &'static str {
+    use vlnav_proto::v1 as pb;
     match name {
-        "ingress" => "vlnav.v1.IngressService",
-        "planner" => "vlnav.v1.PlannerService",
-        "detector" => "vlnav.v1.DetectorService",
-        "reid" => "vlnav.v1.ReidService",
-        "segmenter" => "vlnav.v1.SegmenterService",
-        "subgoal" => "vlnav.v1.SubgoalService",
-        "local-planner" => "vlnav.v1.LocalPlannerService",
-        GATEWAY => "vlnav.v1.MissionService",
+        "ingress" => pb::ingress_service_server::SERVICE_NAME,
+        "planner" => pb::planner_service_server::SERVICE_NAME,
+        "detector" => pb::detector_service_server::SERVICE_NAME,
+        "reid" => pb::reid_service_server::SERVICE_NAME,
+        "segmenter" => pb::segmenter_service_server::SERVICE_NAME,
+        "subgoal" => pb::subgoal_service_server::SERVICE_NAME,
+        "local-planner" => pb::local_planner_service_server::SERVICE_NAME,
+        GATEWAY => pb::mission_service_server::SERVICE_NAME,
         _ => "",
     }
 }

@@ -559,9 +559,7 @@ impl RobotState {
             .find(|&(v, w)| (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, horizon(v), p) && ok(v, w))
             .unwrap_or((0.0, 0.0))
     }
-}
 
-impl RobotState {
     /// What the robot does when the footprint guard stops every part of a
     /// path's command: a path that bends away from a zone the robot stands
     /// beside swings the rear corner into it, and stopped there it would
