@@ -120,6 +120,9 @@
 //!   its corners swing (evaluation, hall with people crossing). In the
 //!   sweep disc everyone tracked counts `PeopleParams::radius_m` nearer
 //!   than where they stand: people sway and step while the corners swing.
+//!   Within `PeopleParams::near_walker_m` of a walker the speed is capped
+//!   at `PeopleParams::near_walker_mps`, from which the robot stops within
+//!   the straying the reach test allows them.
 //!   A walker's cells stay ordinary cells in the memory: forgetting them
 //!   out of view once they walked (they had gone on) raised the crossing
 //!   hall's success but let the robot turn into people who had stopped
@@ -854,6 +857,13 @@ impl RobotState {
         }
 
         let speed = if input.max_speed > 0.0 { input.max_speed.min(p.max_speed) } else { p.max_speed };
+        // Near a walker, no faster than the robot stops from within the
+        // reach it allows them (see `PeopleParams::near_walker_mps`).
+        let speed = if self.people.walker_within(input.stamp, &input.pose, p.people.near_walker_m, &p.people) {
+            speed.min(p.people.near_walker_mps)
+        } else {
+            speed
+        };
         // The course held: where last frame's path crosses the look-ahead circle now.
         let course = self
             .last_path_odom

@@ -60,6 +60,22 @@ pub struct PeopleParams {
     /// How fast the reach grows with the time ahead, m/s, and its cap, m.
     pub spread_mps: f64,
     pub spread_max_m: f64,
+    /// Within this distance of a walker (their predicted place, from the
+    /// robot's centre) the robot drives no faster than `near_walker_mps`,
+    /// m: what a walker (up to 1.5 m/s) and the robot (1.0 m/s) can close
+    /// in `horizon_s`, plus the robot's half-length, the person's radius and
+    /// `spread_max_m` — 2.5 + 0.495 + 0.3 + 0.3 ≈ 3.6 m.
+    pub near_walker_m: f64,
+    /// The speed near a walker, m/s: the fastest from which the robot,
+    /// braking at `FollowParams::max_accel` (1 m/s²) after one frame
+    /// (`FollowParams::nominal_period_s`, 0.2 s) of reaction, stops within
+    /// `spread_max_m` (0.3 m), the margin the reach test allows a person to
+    /// stray: v·0.2 + v²/2 = 0.3 gives 0.6 m/s. The camera looks only ahead
+    /// and the detector misses people at the edge of the view, so a walker
+    /// is often known only from a few frames; a robot at full speed beside
+    /// them swings its corners faster than the tracker catches up
+    /// (services/local-planner/README.md, "People").
+    pub near_walker_mps: f64,
 }
 
 impl Default for PeopleParams {
@@ -77,6 +93,8 @@ impl Default for PeopleParams {
             radius_m: 0.3,
             spread_mps: 0.5,
             spread_max_m: 0.3,
+            near_walker_m: 3.6,
+            near_walker_mps: 0.6,
         }
     }
 }
@@ -188,6 +206,11 @@ impl Tracker {
                 (pose.inverse_transform(&(at + v * dt)), p.radius_m + (p.spread_mps * dt).min(p.spread_max_m))
             })
             .collect()
+    }
+
+    /// Whether a walker is expected within `range` of `pose` at `stamp`.
+    pub fn walker_within(&self, stamp: f64, pose: &Pose2, range: f64, p: &PeopleParams) -> bool {
+        self.walkers_ahead(stamp, 0.0, pose, p).iter().any(|(q, _)| q.norm() < range)
     }
 
     /// Where everyone seen within `keep_s` (and often enough to be sure) is expected at `stamp`, in

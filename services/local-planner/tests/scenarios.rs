@@ -511,3 +511,49 @@ fn a_turn_in_place_waits_while_a_walking_person_crosses_within_reach() {
         assert!(out.angular.abs() > 1e-9, "frame {k}: a standing person out of the sweep holds nothing: {out:?}");
     }
 }
+
+#[test]
+fn near_a_walking_person_the_robot_drives_no_faster_than_it_can_stop_within_their_reach() {
+    let params = FollowParams::default();
+    let pp = params.people;
+    // The speed cap stops the robot within the straying margin the reach
+    // test allows (one frame of reaction, then braking at max_accel) …
+    let stop = |v: f64| v * params.nominal_period_s + v * v / (2.0 * params.max_accel);
+    assert!(stop(pp.near_walker_mps) <= pp.spread_max_m + 1e-9, "stops in {:.3} m", stop(pp.near_walker_mps));
+    assert!(stop(pp.near_walker_mps + 0.05) > pp.spread_max_m, "and is the fastest that does");
+    // … from within what a walker (1.5 m/s) and the robot close in the
+    // horizon, plus the half-length, the person's radius and the straying.
+    let reach = (1.5 + params.max_speed) * pp.horizon_s + params.half_length_m + pp.radius_m + pp.spread_max_m;
+    assert!((pp.near_walker_m - reach).abs() < 0.01, "{} vs {reach}", pp.near_walker_m);
+
+    // Driving 12 m down a hall; a person 2 m ahead and 1.5 m to the left
+    // walks the same way at 1 m/s (in view all along), or stands there.
+    let mut top = Vec::new();
+    for walking in [true, false] {
+        let mut builder = CloudBuilder::new(CloudParams::default());
+        let mut state = RobotState::default();
+        let goal = goal_at(12.0, 0.0, 0.3);
+        let mut pose = Pose2::new(0.0, 0.0, 0.0);
+        let mut fastest_near: f64 = 0.0;
+        for k in 0..30 {
+            let stamp = f64::from(k) * DT;
+            let person = nalgebra::Vector2::new(2.0 + if walking { stamp } else { 0.0 }, 1.5);
+            let at = pose.inverse_transform(&person);
+            let cloud = person_frame(&mut builder, (at.x, at.y));
+            let input = StepInput { stamp, pose, goal, cloud: &cloud, max_speed: 0.0, view: VIEW };
+            let out = state.step(planner(), &params, input);
+            if k >= 5 && at.norm() < pp.near_walker_m {
+                fastest_near = fastest_near.max(out.linear);
+            }
+            let th = pose.theta + out.angular * DT / 2.0;
+            pose = Pose2::new(
+                pose.x + out.linear * DT * th.cos(),
+                pose.y + out.linear * DT * th.sin(),
+                pose.theta + out.angular * DT,
+            );
+        }
+        top.push(fastest_near);
+    }
+    assert!(top[0] > 0.5 && top[0] <= pp.near_walker_mps + 1e-9, "beside a walker: up to {:.2} m/s", top[0]);
+    assert!(top[1] > 0.9, "beside a standing person the robot drives on at speed: {:.2} m/s", top[1]);
+}
