@@ -45,8 +45,11 @@
 //!   obstacle diagonally ahead (or a goal beside a parked car) lets a corner
 //!   or the swinging rear touch it. Before a command goes out, the robot's
 //!   rectangle (`half_length_m` × `half_width_m`, plus `guard_margin_m`) is
-//!   moved along the commanded arc for one frame period plus the distance
-//!   needed to stop (`v / 2·max_accel`); if it would take in a blocking cell
+//!   moved along the commanded arc for one frame period plus the time
+//!   needed to stop (the longer of `v / 2·max_accel` and `ω / 2·yaw_decel`:
+//!   a spot turn beside a parked bicycle, checked over one frame only,
+//!   swung the rear corner into it while braking — evaluation, garage,
+//!   trial 3); if it would take in a blocking cell
 //!   (≥ 2 voxels) or a no-go cell (a marked zone, a cable: the paths keep
 //!   their 0.45 m tube off it, but a corner swinging round a cable's end
 //!   entered it — soft contact, docs/design.md §6), this frame's or
@@ -556,10 +559,13 @@ impl RobotState {
     /// accepts it), else the first such of: the turn alone, the straight
     /// part alone, a stop.
     fn guard(&self, v: f64, w: f64, dt: f64, p: &FollowParams, ok: &dyn Fn(f64, f64) -> bool) -> (f64, f64) {
-        let horizon = |v: f64| dt + v.abs() / (2.0 * p.max_accel);
+        // One frame, then as long as stopping takes: the linear part at
+        // `max_accel`, the turn at `yaw_decel` (a spot turn's rear corner
+        // swings on while it brakes).
+        let horizon = |v: f64, w: f64| dt + (v.abs() / (2.0 * p.max_accel)).max(w.abs() / (2.0 * p.yaw_decel));
         [(v, w), (0.0, w), (v, 0.0)]
             .into_iter()
-            .find(|&(v, w)| (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, horizon(v), p) && ok(v, w))
+            .find(|&(v, w)| (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, horizon(v, w), p) && ok(v, w))
             .unwrap_or((0.0, 0.0))
     }
 
@@ -1310,6 +1316,26 @@ mod tests {
         let mut walled = state.clone();
         walled.cloud.cells.push(Cell { x: 0.57, y: 0.0, blocking: 5, low: false, no_go: false, person: 0 });
         assert_eq!(walled.creep(&Vector2::new(3.4, 0.5), 0.2, &p), (0.0, 0.0));
+    }
+
+    #[test]
+    fn a_spot_turn_beside_a_parked_bicycle_counts_the_sweep_while_it_brakes() {
+        let p = FollowParams::default();
+        // The bicycle's side runs along the robot's right, 0.55 m from its
+        // centre, from 1 m behind to beside the centre.
+        let cells: Vec<Cell> = (0..21)
+            .map(|i| Cell { x: -1.0 + 0.05 * i as f32, y: -0.55, blocking: 10, low: false, no_go: false, person: 0 })
+            .collect();
+        let state = RobotState { cloud: ObstacleCloud { cells, ..ObstacleCloud::default() }, ..RobotState::default() };
+        // Turning left at 1.5 rad/s the rear-right corner swings toward it:
+        // one frame (0.3 rad) keeps clear, but braking at 3 rad/s² takes
+        // 0.375 rad more, and the inflated corner crosses the side at about
+        // 0.42 rad: the robot stops (and creeps on, `creep`).
+        assert_eq!(state.guard(0.0, 1.5, 0.2, &p, &|_, _| true), (0.0, 0.0));
+        // Braking counted over one frame only, the turn went ahead.
+        assert!(!state.footprint_hits(0.0, 1.5, 0.2, &p));
+        // Turning right swings it away.
+        assert_eq!(state.guard(0.0, -1.5, 0.2, &p, &|_, _| true), (0.0, -1.5));
     }
 
     #[test]
