@@ -78,6 +78,12 @@ struct Run {
     outputs: Vec<StepOutput>,
 }
 
+/// The pose after executing `out`'s (v, ω) for one frame period (unicycle).
+fn advance(pose: &Pose2, out: &StepOutput) -> Pose2 {
+    let th = pose.theta + out.angular * DT / 2.0;
+    Pose2::new(pose.x + out.linear * DT * th.cos(), pose.y + out.linear * DT * th.sin(), pose.theta + out.angular * DT)
+}
+
 /// Closed loop until REACHED (or `steps` frames).
 fn drive(world: &World, start: Pose2, goal: GoalSpec, steps: usize) -> Run {
     drive_with(FollowParams::default(), world, start, goal, steps)
@@ -98,13 +104,7 @@ fn drive_with(params: FollowParams, world: &World, start: Pose2, goal: GoalSpec,
         assert!(out.linear.abs() <= params.max_speed + 1e-9, "speed {}", out.linear);
         assert!(out.angular.abs() <= params.max_yaw_rate + 1e-9, "yaw rate {}", out.angular);
         let reached = out.status == StepStatus::Reached;
-        // Unicycle over one frame period.
-        let th = pose.theta + out.angular * DT / 2.0;
-        pose = Pose2::new(
-            pose.x + out.linear * DT * th.cos(),
-            pose.y + out.linear * DT * th.sin(),
-            pose.theta + out.angular * DT,
-        );
+        pose = advance(&pose, &out);
         run.outputs.push(out);
         run.poses.push(pose);
         if reached {
@@ -545,12 +545,7 @@ fn near_a_walking_person_the_robot_drives_no_faster_than_it_can_stop_within_thei
             if k >= 5 && at.norm() < pp.near_walker_m {
                 fastest_near = fastest_near.max(out.linear);
             }
-            let th = pose.theta + out.angular * DT / 2.0;
-            pose = Pose2::new(
-                pose.x + out.linear * DT * th.cos(),
-                pose.y + out.linear * DT * th.sin(),
-                pose.theta + out.angular * DT,
-            );
+            pose = advance(&pose, &out);
         }
         top.push(fastest_near);
     }
