@@ -43,14 +43,20 @@ use vlnav_eval::metrics::Mode;
 /// other places, its odometry ends the MOVE 0.09 m off the commanded
 /// 12 m, and the wheels' slip on the turns puts the true end 0.15 m from
 /// it.
-const PINNED: &str = "crossing 0 succeeded true true +0.01 0 0\n\
-crossing 1 succeeded true true +0.15 0 0\n\
-garage 0 succeeded true true +0.02 0 0\n\
-garage 1 succeeded true true +0.04 0 0\n\
+/// Crossing trials 0 and 1 stop 1 and 2 cm farther, garage trials 0 and 1
+/// 1 cm farther and nearer, and symmetric trials 0 and 1 2 cm farther and
+/// 1 cm nearer since the segmenter's default point stride is scaled to the
+/// frame (services/segmenter/README.md): at the suite's 160 × 120 every
+/// pixel of a marking, not one in 16, is a no-go point, so the ways round
+/// the markings, and the views the targets are fused from, moved.
+const PINNED: &str = "crossing 0 succeeded true true +0.02 0 0\n\
+crossing 1 succeeded true true +0.17 0 0\n\
+garage 0 succeeded true true +0.03 0 0\n\
+garage 1 succeeded true true +0.03 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\
 precise 1 succeeded true true +0.03 0 0\n\
-symmetric 0 succeeded true true +0.08 0 0\n\
-symmetric 1 succeeded true true +0.08 0 0";
+symmetric 0 succeeded true true +0.10 0 0\n\
+symmetric 1 succeeded true true +0.07 0 0";
 
 fn args(out: &std::path::Path) -> vlnav_eval::EvalArgs {
     vlnav_eval::EvalArgs {

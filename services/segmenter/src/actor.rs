@@ -14,12 +14,27 @@ pub struct SegmentJob {
     pub depth_mm: Vec<u16>,
     pub semantics: Option<SemanticLabels>,
     pub classes: Option<Vec<String>>,
-    /// 0: the service default.
+    /// 0: the service default, scaled to the frame's width ([`scaled_stride`]).
     pub point_stride: usize,
 }
 
 pub enum Msg {
     Segment { job: SegmentJob, reply: oneshot::Sender<Result<Segmentation, SegmentError>> },
+}
+
+/// Width of the frames the default point stride is set for: the D455's
+/// 640×480 colour stream (docs/design.md).
+pub const STRIDE_REFERENCE_WIDTH: u32 = 640;
+
+/// The service's default stride (`--segmenter-point-stride`, every n-th
+/// pixel of a 640-wide frame) for a frame `width` pixels wide: the same
+/// spacing of points in the scene, at least every pixel. A 160×120 frame
+/// taken every 4th pixel would keep one pixel in 16 of a cable one pixel
+/// wide, and the cable's end would be known only to 4 pixels (14 cm at 3 m).
+pub fn scaled_stride(stride_at_reference: usize, width: u32) -> usize {
+    let width = width.max(1) as usize;
+    let reference = STRIDE_REFERENCE_WIDTH as usize;
+    ((stride_at_reference * width + reference / 2) / reference).max(1)
 }
 
 pub struct SegmenterActor {
@@ -51,7 +66,23 @@ impl SegmenterActor {
     pub fn handle(&self, job: &SegmentJob) -> Result<Segmentation, SegmentError> {
         let frame =
             FrameView { camera: job.camera, rgb: &job.rgb, depth_mm: &job.depth_mm, semantics: job.semantics.as_ref() };
-        let stride = if job.point_stride == 0 { self.default_stride } else { job.point_stride };
+        let stride =
+            if job.point_stride == 0 { scaled_stride(self.default_stride, job.camera.width) } else { job.point_stride };
         segment(self.backend.as_ref(), &frame, job.classes.as_deref(), stride, &self.settings)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::scaled_stride;
+
+    #[test]
+    fn the_default_stride_keeps_the_point_spacing_of_a_640_wide_frame() {
+        assert_eq!(scaled_stride(4, 640), 4);
+        assert_eq!(scaled_stride(4, 1280), 8);
+        assert_eq!(scaled_stride(4, 320), 2);
+        assert_eq!(scaled_stride(4, 160), 1);
+        assert_eq!(scaled_stride(4, 16), 1, "never less than every pixel");
+        assert_eq!(scaled_stride(1, 640), 1);
     }
 }

@@ -54,7 +54,9 @@ pub struct Options {
         default_value = "0,0.25,0.5"
     )]
     pub layers_m: Vec<f64>,
-    /// Keep every n-th pixel (in x and in y) when making points, unless the request says otherwise.
+    /// Keep every n-th pixel (in x and in y) of a 640-wide frame when making
+    /// points, scaled to the frame's width (`actor::scaled_stride`), unless
+    /// the request says otherwise.
     #[arg(long = "segmenter-point-stride", env = "VLNAV_SEGMENTER_POINT_STRIDE", default_value_t = 4)]
     pub point_stride: usize,
 }
