@@ -49,13 +49,18 @@ use vlnav_eval::metrics::Mode;
 /// frame (services/segmenter/README.md): at the suite's 160 × 120 every
 /// pixel of a marking, not one in 16, is a no-go point, so the ways round
 /// the markings, and the views the targets are fused from, moved.
-const PINNED: &str = "crossing 0 succeeded true true +0.02 0 0\n\
-crossing 1 succeeded true true +0.17 0 0\n\
-garage 0 succeeded true true +0.03 0 0\n\
-garage 1 succeeded true true +0.03 0 0\n\
+/// Crossing trial 0 stops 1 cm farther, crossing trial 1 2 cm nearer,
+/// garage trials 0 and 1 1 cm nearer and farther and symmetric trial 0
+/// 3 cm nearer since the segmenter places a marking's points where the
+/// pixel's ray meets the floor and leaves out the foot of anything
+/// standing (services/segmenter/README.md): the markings' cells moved.
+const PINNED: &str = "crossing 0 succeeded true true +0.03 0 0\n\
+crossing 1 succeeded true true +0.15 0 0\n\
+garage 0 succeeded true true +0.02 0 0\n\
+garage 1 succeeded true true +0.04 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\
 precise 1 succeeded true true +0.03 0 0\n\
-symmetric 0 succeeded true true +0.10 0 0\n\
+symmetric 0 succeeded true true +0.07 0 0\n\
 symmetric 1 succeeded true true +0.07 0 0";
 
 fn args(out: &std::path::Path) -> vlnav_eval::EvalArgs {

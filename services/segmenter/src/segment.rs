@@ -6,6 +6,7 @@
 
 use std::collections::HashMap;
 
+use nalgebra::Vector3;
 use vlnav_geometry::camera::{Camera, Projector};
 
 use crate::colour::{ColourClass, rgb_to_hsv};
@@ -188,6 +189,7 @@ pub fn segment(
 
     let (w, h) = (frame.camera.width as usize, frame.camera.height as usize);
     let projector = Projector::new(&frame.camera);
+    let rays = FloorRays::new(&projector);
     let stride = stride.max(1);
     let mut mask = vec![0u8; w * h];
     let mut class_pixels = vec![0u32; classes.len()];
@@ -207,6 +209,13 @@ pub fn segment(
                     Some(p) if (p.z - settings.floor_z_m).abs() <= settings.floor_tolerance_m => {}
                     _ => continue,
                 }
+                // The foot of something standing (a red hydrant's base, a
+                // walker's red shoes): within the tolerance of the floor,
+                // but the surface rises there.
+                let depth = projector.valid_depth(frame.depth_mm[idx]).unwrap_or(0.0);
+                if rises_above(frame, &projector, &rays, (u, v), depth, settings.floor_z_m) {
+                    continue;
+                }
             }
             let r = to_response[class];
             mask[idx] = r;
@@ -215,12 +224,96 @@ pub fn segment(
                 && u % stride == 0
                 && v % stride == 0
             {
-                let base = if backend.floor_only(class) { settings.floor_z_m } else { p.z };
-                points.extend(settings.layers_m.iter().map(|dz| [p.x, p.y, base + dz]));
+                let (at, base) = if backend.floor_only(class) {
+                    // On the floor the pixel's ray places it better than its
+                    // depth: the D455's error grows with the square of range
+                    // (σ = 0.005·z², 0.18 m at 6 m along the ray;
+                    // docs/perception.md, "Depth"), where the ray meets a
+                    // flat floor as exactly as the camera is calibrated.
+                    (floor_point(&projector, u, v, settings.floor_z_m).unwrap_or(p), settings.floor_z_m)
+                } else {
+                    (p, p.z)
+                };
+                points.extend(settings.layers_m.iter().map(|dz| [at.x, at.y, base + dz]));
             }
         }
     }
     Ok(Segmentation { classes, mask, class_pixels, points })
+}
+
+/// Where the ray through pixel `(u, v)` meets the floor plane at height
+/// `floor_z` (`base_link`), if it points down to it.
+fn floor_point(projector: &Projector, u: usize, v: usize, floor_z: f64) -> Option<Vector3<f64>> {
+    let origin = projector.project(u as f64, v as f64, 0.0);
+    let ray = projector.project(u as f64, v as f64, 1.0) - origin;
+    (ray.z < -1e-9).then(|| origin + ray * ((floor_z - origin.z) / ray.z))
+}
+
+/// A floor marking lies flat; the foot of an object rises. The test looks
+/// up the image from the pixel to the first row where a flat floor would
+/// be at least `FLAT_SEPARATION_M` and four of the D455's σ farther along
+/// the ray than the pixel (σ = 0.005·z², docs/perception.md, "Depth"), so
+/// that the depth measured there tells the floor from an upright face.
+const FLAT_SEPARATION_M: f64 = 0.15;
+const D455_NOISE_K: f64 = 0.005;
+/// Rows searched upward for that row (0.15 m up a face 1 m away is 58 rows
+/// of a 640 × 480 image); none found (the top of the image): no test.
+const FLAT_SEARCH_ROWS: usize = 64;
+
+/// Where pixels' rays meet the floor: a ray's height per metre of optical
+/// depth is affine in the pixel (`Projector::project` is, at a fixed
+/// depth), so the floor's optical depth at any pixel is two multiplies
+/// away.
+struct FloorRays {
+    origin_z: f64,
+    z0: f64,
+    zu: f64,
+    zv: f64,
+}
+
+impl FloorRays {
+    fn new(projector: &Projector) -> Self {
+        let origin = projector.project(0.0, 0.0, 0.0);
+        let r00 = projector.project(0.0, 0.0, 1.0) - origin;
+        let zu = projector.project(1.0, 0.0, 1.0).z - origin.z - r00.z;
+        let zv = projector.project(0.0, 1.0, 1.0).z - origin.z - r00.z;
+        Self { origin_z: origin.z, z0: r00.z, zu, zv }
+    }
+
+    /// Optical depth at which pixel `(u, v)`'s ray meets the floor at
+    /// height `floor_z`; infinite at or above the horizon.
+    fn depth(&self, u: f64, v: f64, floor_z: f64) -> f64 {
+        let dz = self.z0 + self.zu * u + self.zv * v;
+        if dz < -1e-9 { (floor_z - self.origin_z) / dz } else { f64::INFINITY }
+    }
+}
+
+/// Whether the surface at pixel `(u, v)`, seen at optical depth `depth`
+/// (m), rises like the side of an object rather than lying flat like the
+/// floor at height `floor_z`: at the first row above it where a flat floor
+/// would lie far enough beyond it, the measured depth is nearer the
+/// pixel's own (an upright face) than the floor's. A hole there looks on
+/// up; none found: flat.
+fn rises_above(
+    frame: &FrameView,
+    projector: &Projector,
+    rays: &FloorRays,
+    (u, v): (usize, usize),
+    depth: f64,
+    floor_z: f64,
+) -> bool {
+    let w = frame.camera.width as usize;
+    let separation = FLAT_SEPARATION_M.max(4.0 * D455_NOISE_K * depth * depth);
+    for k in 1..=FLAT_SEARCH_ROWS.min(v) {
+        let row = v - k;
+        let floor_depth = rays.depth(u as f64, row as f64, floor_z);
+        if floor_depth - depth < separation {
+            continue;
+        }
+        let Some(measured) = projector.valid_depth(frame.depth_mm[row * w + u]) else { continue };
+        return (measured - depth).abs() < (floor_depth - measured).abs();
+    }
+    false
 }
 
 #[cfg(test)]

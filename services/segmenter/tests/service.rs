@@ -1,6 +1,7 @@
 //! The segmenter over a real socket on synthetic RGB-D frames ray-cast from
 //! a known scene: a floor with a red zone and a yellow hazard-tape line, and
-//! a wall carrying a red poster above the floor.
+//! a wall carrying a red poster above the floor; optionally a red post
+//! standing on the floor and stereo-like depth noise.
 
 use nalgebra::{Rotation3, Vector3};
 use tonic::Code;
@@ -25,6 +26,10 @@ const TAPE: ([f64; 2], [f64; 2]) = ([3.0, 3.1], [-1.0, 1.0]);
 /// The wall plane x = 4 m and the red poster on it (y, z ranges).
 const WALL_X: f64 = 4.0;
 const POSTER: ([f64; 2], [f64; 2]) = ([-0.5, 0.5], [0.8, 1.3]);
+/// A red post standing on the floor, its face the plane x = 3.5 m (y, z
+/// ranges): the foot of a red fire hydrant, a walker's red trousers.
+const POST_X: f64 = 3.5;
+const POST: ([f64; 2], [f64; 2]) = ([0.6, 0.9], [0.0, 0.8]);
 
 #[derive(Clone, Copy, PartialEq)]
 enum Surface {
@@ -33,10 +38,19 @@ enum Surface {
     Tape,
     Wall,
     Poster,
+    Post,
 }
 
 /// Renders RGB, depth (mm) and per-pixel surfaces by casting each pixel's ray.
 fn render() -> (Vec<u8>, Vec<u8>, Vec<Option<Surface>>) {
+    render_with(false, 0.0)
+}
+
+/// `render`, with the red post if `post`, and each depth off by ±1.5 σ,
+/// σ = `noise_k`·z² (the D455's growth with range, docs/perception.md),
+/// the sign alternating between blocks of 8 × 8 pixels (a stereo
+/// matcher's error is shared by the pixels of one matching window).
+fn render_with(post: bool, noise_k: f64) -> (Vec<u8>, Vec<u8>, Vec<Option<Surface>>) {
     let rot = Rotation3::from_euler_angles(0.0, MOUNT.1, 0.0);
     let origin = Vector3::from(MOUNT.0);
     let (mut rgb, mut depth, mut surf) = (Vec::new(), Vec::new(), Vec::new());
@@ -48,10 +62,19 @@ fn render() -> (Vec<u8>, Vec<u8>, Vec<Option<Surface>>) {
             let dir = rot * Vector3::new(optical.z, -optical.x, -optical.y);
             let t_floor = if dir.z < 0.0 { -origin.z / dir.z } else { f64::INFINITY };
             let t_wall = if dir.x > 0.0 { (WALL_X - origin.x) / dir.x } else { f64::INFINITY };
-            let t = t_floor.min(t_wall);
+            let t_post = if post && dir.x > 0.0 {
+                let t = (POST_X - origin.x) / dir.x;
+                let p = origin + dir * t;
+                if inside(p.y, POST.0) && inside(p.z, POST.1) { t } else { f64::INFINITY }
+            } else {
+                f64::INFINITY
+            };
+            let t = t_floor.min(t_wall).min(t_post);
             let (colour, s, mm) = if t.is_finite() && t < 20.0 {
                 let p = origin + dir * t;
-                let s = if t_floor < t_wall {
+                let s = if t == t_post {
+                    Surface::Post
+                } else if t_floor < t_wall {
                     if inside(p.x, ZONE.0) && inside(p.y, ZONE.1) {
                         Surface::Zone
                     } else if inside(p.x, TAPE.0) && inside(p.y, TAPE.1) {
@@ -66,12 +89,14 @@ fn render() -> (Vec<u8>, Vec<u8>, Vec<Option<Surface>>) {
                 };
                 let colour = match s {
                     Surface::Floor => [150, 150, 145],
-                    Surface::Zone | Surface::Poster => [205, 25, 30],
+                    Surface::Zone | Surface::Poster | Surface::Post => [205, 25, 30],
                     Surface::Tape => [235, 200, 20],
                     Surface::Wall => [210, 200, 180],
                 };
                 // t is the optical depth because the optical ray has z = 1.
-                (colour, Some(s), (t * 1000.0).round() as u16)
+                let sign = if (u / 8 + v / 8) % 2 == 0 { -1.5 } else { 1.5 };
+                let z = t + sign * noise_k * t * t;
+                (colour, Some(s), (z * 1000.0).round() as u16)
             } else {
                 ([90, 120, 200], None, 0)
             };
@@ -133,7 +158,7 @@ async fn a_red_floor_zone_becomes_a_wall_of_points_where_it_lies_and_the_poster_
             Some(Surface::Zone) => 0,
             Some(Surface::Tape) => 1,
             Some(Surface::Poster) => 2,
-            Some(Surface::Floor) | Some(Surface::Wall) => 3,
+            Some(Surface::Floor) | Some(Surface::Wall) | Some(Surface::Post) => 3,
             None => 4,
         };
         confusion[row][*m as usize] += 1;
@@ -166,6 +191,46 @@ async fn a_red_floor_zone_becomes_a_wall_of_points_where_it_lies_and_the_poster_
     // Stride 2 keeps about a quarter of the zone's pixels, three points each.
     let expect = confusion[0][1] as f64 / 4.0 * 3.0;
     assert!((n - expect).abs() < 0.1 * expect, "{n} points for {expect:.0} expected");
+    s.stop().await.unwrap();
+}
+
+#[tokio::test]
+async fn the_foot_of_a_red_post_is_no_zone_and_depth_noise_does_not_move_the_zone() {
+    // The post's lowest 10 cm are red and within the floor tolerance, but
+    // the surface rises there: not a marking. With the D455's depth off by
+    // 1.5 σ, the zone's points still lie over the zone: on the floor the
+    // pixel's ray places them.
+    let (rgb, depth, surf) = render_with(true, 0.005);
+    let s = start(Default::default()).await;
+    let r = s
+        .client
+        .clone()
+        .segment(SegmentRequest { frame: Some(frame(rgb, depth)), classes: vec![], return_mask: true, point_stride: 1 })
+        .await
+        .unwrap()
+        .into_inner();
+    let post_px = surf.iter().filter(|x| **x == Some(Surface::Post)).count();
+    assert!(post_px > 2000, "the post is in view: {post_px} px");
+    // Marked: only where the ray grazes the post's corner with the floor
+    // above it in the image (a pixel of the post's silhouette edge).
+    let w = W as usize;
+    let marked: Vec<usize> = (0..surf.len()).filter(|&i| surf[i] == Some(Surface::Post) && r.mask[i] != 0).collect();
+    assert!(marked.iter().all(|&i| i < w || surf[i - w] != Some(Surface::Post)), "only silhouette edges: {marked:?}");
+    assert!(marked.len() * 100 < post_px, "{} of {post_px} post pixels marked", marked.len());
+    let zone_px = r.mask.iter().zip(&surf).filter(|(m, s)| **s == Some(Surface::Zone) && **m == 1).count();
+    assert!(zone_px > 2000, "the zone is still found: {zone_px} px");
+    // Placed by the ray, a zone pixel's point lies over the zone exactly;
+    // placed by its depth, 1.5 σ (3.8 cm at 2.25 m) would move it off.
+    let tol = 0.01;
+    for p in r.virtual_points.iter().filter(|p| p.x < 2.8) {
+        assert!(
+            p.x > ZONE.0[0] - tol && p.x < ZONE.0[1] + tol && p.y > ZONE.1[0] - tol && p.y < ZONE.1[1] + tol,
+            "{p:?} off the zone"
+        );
+    }
+    let at_post =
+        r.virtual_points.iter().filter(|p| p.x > TAPE.0[1] + tol && p.y > POST.0[0] - tol && p.y < POST.0[1] + tol);
+    assert!(at_post.count() <= 3 * marked.len(), "points at the post's foot come only from its edge pixels");
     s.stop().await.unwrap();
 }
 
