@@ -6,7 +6,6 @@
 
 use std::collections::HashMap;
 
-use nalgebra::Vector3;
 use vlnav_geometry::camera::{Camera, Projector};
 
 use crate::colour::{ColourClass, rgb_to_hsv};
@@ -202,7 +201,8 @@ pub fn segment(
                 continue;
             }
             let class = k as usize - 1;
-            let point = projector.valid_depth(frame.depth_mm[idx]).map(|d| projector.project(u as f64, v as f64, d));
+            let depth = projector.valid_depth(frame.depth_mm[idx]);
+            let point = depth.map(|d| projector.project(u as f64, v as f64, d));
             if backend.floor_only(class) {
                 // Unverifiable (no depth) or off the floor (a poster on a wall): not a floor zone.
                 match point {
@@ -212,8 +212,7 @@ pub fn segment(
                 // The foot of something standing (a red hydrant's base, a
                 // walker's red shoes): within the tolerance of the floor,
                 // but the surface rises there.
-                let depth = projector.valid_depth(frame.depth_mm[idx]).unwrap_or(0.0);
-                if rises_above(frame, &projector, &rays, (u, v), depth, settings.floor_z_m) {
+                if rises_above(frame, &projector, &rays, (u, v), depth.unwrap_or(0.0), settings.floor_z_m) {
                     continue;
                 }
             }
@@ -230,7 +229,9 @@ pub fn segment(
                     // (σ = 0.005·z², 0.18 m at 6 m along the ray;
                     // docs/perception.md, "Depth"), where the ray meets a
                     // flat floor as exactly as the camera is calibrated.
-                    (floor_point(&projector, u, v, settings.floor_z_m).unwrap_or(p), settings.floor_z_m)
+                    let on_floor = rays.depth(u as f64, v as f64, settings.floor_z_m);
+                    let at = if on_floor.is_finite() { projector.project(u as f64, v as f64, on_floor) } else { p };
+                    (at, settings.floor_z_m)
                 } else {
                     (p, p.z)
                 };
@@ -239,14 +240,6 @@ pub fn segment(
         }
     }
     Ok(Segmentation { classes, mask, class_pixels, points })
-}
-
-/// Where the ray through pixel `(u, v)` meets the floor plane at height
-/// `floor_z` (`base_link`), if it points down to it.
-fn floor_point(projector: &Projector, u: usize, v: usize, floor_z: f64) -> Option<Vector3<f64>> {
-    let origin = projector.project(u as f64, v as f64, 0.0);
-    let ray = projector.project(u as f64, v as f64, 1.0) - origin;
-    (ray.z < -1e-9).then(|| origin + ray * ((floor_z - origin.z) / ray.z))
 }
 
 /// A floor marking lies flat; the foot of an object rises. The test looks
