@@ -27,6 +27,56 @@ impl Drop for Proc {
     }
 }
 
+/// `roscore` started as the leader of its own process group. It is a
+/// roslaunch that forks `rosmaster` and `rosout`; killing only its pid leaves
+/// both running. When dropped: SIGINT to the whole group (roslaunch's own
+/// shutdown), then SIGKILL to whatever of the group is left after 5 s.
+struct ProcGroup(Child);
+
+impl ProcGroup {
+    fn spawn(name: &'static str, mut cmd: Command) -> ProcGroup {
+        use std::os::unix::process::CommandExt;
+        cmd.process_group(0);
+        ProcGroup(spawn_child(name, cmd))
+    }
+
+    /// Signals the group whose id is the child's pid; never any other group.
+    fn signal_group(&self, signal: libc::c_int) -> bool {
+        let Ok(pgid) = libc::pid_t::try_from(self.0.id()) else { return false };
+        // SAFETY: plain syscalls on a pid we spawned; a negative pid names its group.
+        pgid > 1 && unsafe { libc::getpgid(pgid) == pgid && libc::kill(-pgid, signal) == 0 }
+    }
+
+    /// True while any process of the group is alive (kill with signal 0 probes).
+    fn group_alive(&self) -> bool {
+        let Ok(pgid) = libc::pid_t::try_from(self.0.id()) else { return false };
+        // SAFETY: signal 0 only checks that the group exists.
+        pgid > 1 && unsafe { libc::kill(-pgid, 0) == 0 }
+    }
+}
+
+impl Drop for ProcGroup {
+    fn drop(&mut self) {
+        self.signal_group(libc::SIGINT);
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while Instant::now() < deadline {
+            // Reap the leader as soon as it exits, so a zombie does not keep the group "alive".
+            let _ = self.0.try_wait();
+            if !self.group_alive() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        let pgid = libc::pid_t::try_from(self.0.id()).unwrap_or(0);
+        if pgid > 1 {
+            // SAFETY: as above; the group is ours and still alive past its grace period.
+            unsafe { libc::kill(-pgid, libc::SIGKILL) };
+        }
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
 fn ros_env(cmd: &mut Command, master: &str, home: &std::path::Path) {
     cmd.env("ROS_MASTER_URI", master)
         .env("ROS_HOSTNAME", "127.0.0.1")
@@ -36,9 +86,13 @@ fn ros_env(cmd: &mut Command, master: &str, home: &std::path::Path) {
         .env_remove("ROS_IP");
 }
 
-fn spawn(name: &'static str, mut cmd: Command) -> Proc {
+fn spawn(name: &'static str, cmd: Command) -> Proc {
+    Proc(spawn_child(name, cmd))
+}
+
+fn spawn_child(name: &'static str, mut cmd: Command) -> Child {
     match cmd.spawn() {
-        Ok(c) => Proc(c),
+        Ok(c) => c,
         Err(e) => panic!(
             "cannot run `{name}`: {e}. The ros1 driver test needs ROS 1: apt-get install $(grep -v '^#' .ci/apt/edge-agent.txt)"
         ),
@@ -80,7 +134,7 @@ async fn ros1_driver_clamps_and_its_deadman_zeroes_cmd_vel_on_a_real_roscore() {
     let mut roscore = Command::new("roscore");
     roscore.args(["-p", &port.to_string()]).stdout(Stdio::null()).stderr(Stdio::null());
     ros_env(&mut roscore, &master, home.path());
-    let _roscore = spawn("roscore", roscore);
+    let _roscore = ProcGroup::spawn("roscore", roscore);
     let started = Instant::now();
     loop {
         let mut list = Command::new("rostopic");
