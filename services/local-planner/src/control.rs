@@ -914,6 +914,9 @@ impl RobotState {
             return stop(self, out, StepStatus::Reached);
         }
         let (v, w) = if v == 0.0 && w == 0.0 { self.creep(&goal_base, dt, p) } else { (v, w) };
+        if v == 0.0 && w == 0.0 {
+            self.log_blocked(&input, p.sweep_radius_m, "the footprint guard stops every command");
+        }
         let (v, w) = if self.people_closer(&input, v, w, p) {
             // Yield to a walker: the parts of the command that keep clear of
             // them, or a stop; waiting for people is no lack of progress.

@@ -152,6 +152,18 @@ pub fn approach_goal(robot: &Pose2, target: &Vector2<f64>, d_s: f64) -> Pose2 {
     Pose2::new(robot.x + travel * bearing.cos(), robot.y + travel * bearing.sin(), bearing)
 }
 
+/// The heading of an approach goal for a fixed target: the bearing of the
+/// approach line from `from` (where the robot first observed the target) to
+/// `target`; `otherwise` when the line has no length. The goal's position
+/// stays where [`approach_goal`] puts it; its heading is the course a relative
+/// step after it turns from (“stop before the person, then turn right 45°”),
+/// and the line the robot was sent along does not swing with the robot's
+/// weave round obstacles on the way (docs/design.md §3).
+pub fn approach_heading(from: &Vector2<f64>, target: &Vector2<f64>, otherwise: f64) -> f64 {
+    let line = target - from;
+    if line.norm() < 1e-9 { otherwise } else { line.y.atan2(line.x) }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -339,6 +351,13 @@ mod tests {
         let b = PixelBox { x_min: k.cx - 5.0, y_min: k.cy - 5.0, x_max: k.cx + 5.0, y_max: k.cy + 5.0 };
         let t = target_in_odom(&cam, &b, 3.0, &robot);
         assert!((t - Vector3::new(-3.0, 0.0, 0.0)).norm() < 1e-9, "{t:?}");
+    }
+
+    #[test]
+    fn the_approach_heading_is_the_bearing_of_the_line_from_first_sight() {
+        near(approach_heading(&Vector2::new(0.0, 0.0), &Vector2::new(4.0, 3.0), 1.0), 3.0f64.atan2(4.0));
+        // A line of no length keeps the fallback.
+        near(approach_heading(&Vector2::new(4.0, 3.0), &Vector2::new(4.0, 3.0), 0.7), 0.7);
     }
 
     #[test]

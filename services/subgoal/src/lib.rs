@@ -70,6 +70,10 @@ pub struct Options {
     /// Most tracks kept at once (least recently used forgotten first).
     #[arg(long = "subgoal-max-tracks", env = "VLNAV_SUBGOAL_MAX_TRACKS", default_value_t = 4096)]
     pub max_tracks: usize,
+    /// A fixed target's goal faces along the line from where the robot first
+    /// saw it until the robot's bearing to the target turns this far from it, rad.
+    #[arg(long = "subgoal-approach-line-max", env = "VLNAV_SUBGOAL_APPROACH_LINE_MAX", default_value_t = 0.35)]
+    pub approach_line_max_rad: f64,
 }
 
 impl Default for Options {
@@ -88,6 +92,7 @@ impl Default for Options {
             gate_floor_m: 0.3,
             accel_sigma: 1.0,
             max_tracks: 4096,
+            approach_line_max_rad: 0.35,
         }
     }
 }
@@ -101,6 +106,7 @@ impl Options {
             ("--subgoal-gate-k", self.gate_k),
             ("--subgoal-accel-sigma", self.accel_sigma),
             ("--subgoal-depth-max", self.depth_max_m),
+            ("--subgoal-approach-line-max", self.approach_line_max_rad),
         ];
         for (name, v) in positive {
             anyhow::ensure!(v.is_finite() && v > 0.0, "{name} must be positive, got {v}");
@@ -139,6 +145,7 @@ impl Options {
             goal_tolerance_m: self.target_tolerance_m,
             goal_yaw_tolerance: self.yaw_tolerance,
             max_tracks: self.max_tracks,
+            approach_line_max_rad: self.approach_line_max_rad,
         }
     }
 }

@@ -8,7 +8,7 @@ use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::{GoalSpec, Pose2};
 
 use crate::fusion::{FixedParams, FixedTarget, Fused, MovingParams, MovingTarget};
-use crate::geometry::{NoDepth, approach_goal};
+use crate::geometry::{NoDepth, approach_goal, approach_heading};
 
 /// Tunables of the visual-target goals and their fusion.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -23,6 +23,11 @@ pub struct TrackParams {
     pub goal_yaw_tolerance: f64,
     /// Most tracks kept; the least recently used is forgotten beyond it.
     pub max_tracks: usize,
+    /// A fixed target's goal faces along the line from where the robot first
+    /// observed it; once the robot's own bearing to the target differs from
+    /// that line's by more than this (a detour round something), the line is
+    /// drawn again from where the robot is, rad.
+    pub approach_line_max_rad: f64,
 }
 
 impl Default for TrackParams {
@@ -34,6 +39,7 @@ impl Default for TrackParams {
             goal_tolerance_m: 0.3,
             goal_yaw_tolerance: 0.2,
             max_tracks: 4096,
+            approach_line_max_rad: 0.35,
         }
     }
 }
@@ -83,6 +89,8 @@ enum Filter {
 struct Track {
     filter: Filter,
     last_used: u64,
+    /// Where the approach line to a fixed target starts (`odom`).
+    approach_from: Option<Vector2<f64>>,
 }
 
 /// Every live track, keyed by `track_key`.
@@ -120,6 +128,22 @@ impl Tracks {
         }
     }
 
+    /// The start of `key`'s approach line: where the robot first observed the
+    /// target, or where it stands once its bearing to the target has turned
+    /// more than `approach_line_max_rad` away from the line (a detour).
+    fn approach_line(&mut self, key: &str, robot: &Pose2, target: &Vector2<f64>) -> Vector2<f64> {
+        let here = robot.position();
+        let Some(track) = self.tracks.get_mut(key) else { return here };
+        let from = *track.approach_from.get_or_insert(here);
+        let (line, now) = (target - from, target - here);
+        let apart = if line.norm() < 1e-9 || now.norm() < 1e-9 { 0.0 } else { line.angle(&now) };
+        if apart > self.params.approach_line_max_rad {
+            track.approach_from = Some(here);
+            return here;
+        }
+        from
+    }
+
     /// Fuses one observation into `key`'s track and returns the goal.
     pub fn observe(&mut self, key: &str, obs: &Observation) -> TargetEstimate {
         self.clock += 1;
@@ -151,7 +175,7 @@ impl Tracks {
             } else {
                 Filter::Fixed(FixedTarget::new(self.params.fixed))
             };
-            self.tracks.insert(key.to_string(), Track { filter, last_used: 0 });
+            self.tracks.insert(key.to_string(), Track { filter, last_used: 0, approach_from: None });
         }
         let track = self.tracks.get_mut(key).expect("inserted above");
         track.last_used = self.clock;
@@ -185,7 +209,12 @@ impl Tracks {
         let observed = obs.target.ok();
         match fused {
             Some(Fused { target, observations, rejected, spread_m, velocity, .. }) => {
-                let pose = approach_goal(&obs.robot, &target.xy(), d_s);
+                let mut pose = approach_goal(&obs.robot, &target.xy(), d_s);
+                if matches!(track.filter, Filter::Fixed(_)) {
+                    // The course a relative step after this one turns from.
+                    let from = self.approach_line(key, &obs.robot, &target.xy());
+                    pose.theta = approach_heading(&from, &target.xy(), pose.theta);
+                }
                 TargetEstimate {
                     status,
                     detail,
@@ -278,6 +307,53 @@ mod tests {
         assert!(t.reset("a"));
         let r = t.observe("a", &obs(Ok(Vector3::new(2.0, 0.0, 0.0)), 0.3));
         assert_eq!(r.observations, 1);
+    }
+
+    #[test]
+    fn the_goal_faces_along_the_line_from_first_sight_wherever_the_robot_weaved() {
+        // First seen from the origin: the line runs along +x to the target at (6, 0).
+        let mut t = Tracks::new(TrackParams::default());
+        t.observe("f", &obs(Ok(Vector3::new(6.0, 0.0, 0.5)), 0.0));
+        // Round a tree, 0.4 m to the left of the line, 2 m short of the target.
+        let mut o = obs(Ok(Vector3::new(6.0, 0.0, 0.5)), 0.2);
+        o.robot = Pose2::new(4.0, 0.4, 0.3);
+        let g = t.observe("f", &o).goal.unwrap().pose;
+        // The position is d_s short along the robot's own bearing (the paper's) …
+        let bearing = (-0.4f64).atan2(2.0);
+        let d = 0.4f64.hypot(2.0);
+        assert!((g.x - (4.0 + (d - 1.0) * bearing.cos())).abs() < 1e-9, "{g:?}");
+        assert!((g.y - (0.4 + (d - 1.0) * bearing.sin())).abs() < 1e-9, "{g:?}");
+        // … and the course a following step turns from is the line's.
+        assert!(g.theta.abs() < 1e-9, "{g:?}");
+    }
+
+    #[test]
+    fn a_wide_detour_draws_the_approach_line_again_from_where_the_robot_is() {
+        let mut t = Tracks::new(TrackParams::default());
+        t.observe("f", &obs(Ok(Vector3::new(6.0, 0.0, 0.5)), 0.0));
+        // Round a table: 2 m to the side, at 45° from the line (beyond 0.35 rad).
+        let mut o = obs(Ok(Vector3::new(6.0, 0.0, 0.5)), 0.2);
+        o.robot = Pose2::new(4.0, 2.0, 0.0);
+        let g = t.observe("f", &o).goal.unwrap().pose;
+        let redrawn = (-2.0f64).atan2(2.0);
+        assert!((g.theta - redrawn).abs() < 1e-9, "{g:?}");
+        // The new line holds from there on: a little off it, the heading stays.
+        o.robot = Pose2::new(4.6, 1.2, 0.0);
+        let again = t.observe("f", &o).goal.unwrap().pose;
+        assert!((again.theta - redrawn).abs() < 1e-9, "{again:?}");
+    }
+
+    #[test]
+    fn a_moving_target_is_faced_from_where_the_robot_is() {
+        let mut t = Tracks::new(TrackParams::default());
+        let mut m = obs(Ok(Vector3::new(6.0, 0.0, 0.5)), 0.0);
+        m.moving = true;
+        t.observe("p", &m);
+        m.robot = Pose2::new(3.0, 1.0, 0.0);
+        m.stamp = 0.2;
+        let g = t.observe("p", &m).goal.unwrap().pose;
+        let bearing = (-1.0f64).atan2(3.0);
+        assert!((g.theta - bearing).abs() < 0.05, "{g:?}");
     }
 
     #[test]
