@@ -40,18 +40,21 @@ impl ProcGroup {
         ProcGroup(spawn_child(name, cmd))
     }
 
+    /// The group's id (the child's pid), never 0 or 1, which would name other groups.
+    fn pgid(&self) -> Option<libc::pid_t> {
+        libc::pid_t::try_from(self.0.id()).ok().filter(|&p| p > 1)
+    }
+
     /// Signals the group whose id is the child's pid; never any other group.
     fn signal_group(&self, signal: libc::c_int) -> bool {
-        let Ok(pgid) = libc::pid_t::try_from(self.0.id()) else { return false };
         // SAFETY: plain syscalls on a pid we spawned; a negative pid names its group.
-        pgid > 1 && unsafe { libc::getpgid(pgid) == pgid && libc::kill(-pgid, signal) == 0 }
+        self.pgid().is_some_and(|g| unsafe { libc::getpgid(g) == g && libc::kill(-g, signal) == 0 })
     }
 
     /// True while any process of the group is alive (kill with signal 0 probes).
     fn group_alive(&self) -> bool {
-        let Ok(pgid) = libc::pid_t::try_from(self.0.id()) else { return false };
         // SAFETY: signal 0 only checks that the group exists.
-        pgid > 1 && unsafe { libc::kill(-pgid, 0) == 0 }
+        self.pgid().is_some_and(|g| unsafe { libc::kill(-g, 0) == 0 })
     }
 }
 
@@ -67,10 +70,9 @@ impl Drop for ProcGroup {
             }
             std::thread::sleep(Duration::from_millis(50));
         }
-        let pgid = libc::pid_t::try_from(self.0.id()).unwrap_or(0);
-        if pgid > 1 {
+        if let Some(g) = self.pgid() {
             // SAFETY: as above; the group is ours and still alive past its grace period.
-            unsafe { libc::kill(-pgid, libc::SIGKILL) };
+            unsafe { libc::kill(-g, libc::SIGKILL) };
         }
         let _ = self.0.kill();
         let _ = self.0.wait();

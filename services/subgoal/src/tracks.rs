@@ -93,6 +93,23 @@ struct Track {
     approach_from: Option<Vector2<f64>>,
 }
 
+impl Track {
+    /// The start of the approach line: where the robot first observed the
+    /// target, or where it stands once its bearing to the target has turned
+    /// more than `max_rad` away from the line (a detour).
+    fn approach_line(&mut self, robot: &Pose2, target: &Vector2<f64>, max_rad: f64) -> Vector2<f64> {
+        let here = robot.position();
+        let from = *self.approach_from.get_or_insert(here);
+        let (line, now) = (target - from, target - here);
+        let apart = if line.norm() < 1e-9 || now.norm() < 1e-9 { 0.0 } else { line.angle(&now) };
+        if apart > max_rad {
+            self.approach_from = Some(here);
+            return here;
+        }
+        from
+    }
+}
+
 /// Every live track, keyed by `track_key`.
 #[derive(Debug)]
 pub struct Tracks {
@@ -126,22 +143,6 @@ impl Tracks {
         if let Some(oldest) = self.tracks.iter().min_by_key(|(_, t)| t.last_used).map(|(k, _)| k.clone()) {
             self.tracks.remove(&oldest);
         }
-    }
-
-    /// The start of `key`'s approach line: where the robot first observed the
-    /// target, or where it stands once its bearing to the target has turned
-    /// more than `approach_line_max_rad` away from the line (a detour).
-    fn approach_line(&mut self, key: &str, robot: &Pose2, target: &Vector2<f64>) -> Vector2<f64> {
-        let here = robot.position();
-        let Some(track) = self.tracks.get_mut(key) else { return here };
-        let from = *track.approach_from.get_or_insert(here);
-        let (line, now) = (target - from, target - here);
-        let apart = if line.norm() < 1e-9 || now.norm() < 1e-9 { 0.0 } else { line.angle(&now) };
-        if apart > self.params.approach_line_max_rad {
-            track.approach_from = Some(here);
-            return here;
-        }
-        from
     }
 
     /// Fuses one observation into `key`'s track and returns the goal.
@@ -212,7 +213,7 @@ impl Tracks {
                 let mut pose = approach_goal(&obs.robot, &target.xy(), d_s);
                 if matches!(track.filter, Filter::Fixed(_)) {
                     // The course a relative step after this one turns from.
-                    let from = self.approach_line(key, &obs.robot, &target.xy());
+                    let from = track.approach_line(&obs.robot, &target.xy(), self.params.approach_line_max_rad);
                     pose.theta = approach_heading(&from, &target.xy(), pose.theta);
                 }
                 TargetEstimate {
