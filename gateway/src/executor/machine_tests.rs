@@ -288,15 +288,15 @@ fn intermittent_sightings_confirm_within_the_window_and_misses_do_not_count() {
 
 #[test]
 fn a_candidate_another_class_outvotes_is_dropped_and_its_place_ignored() {
-    // One chair sighting, then three frames in which the detector calls the
+    // One chair sighting, then four frames in which the detector calls the
     // same object a couch: the chair candidate is dropped; later chair boxes
     // at that place are that couch again and never confirm.
     let p = ExecutorParams::default();
     let mut m = mission(vec![find(56, "chair")]);
     let couch = Detection { class_id: 57, label: "couch".into(), ..chair(70.0, 95.0) };
     let mut keys = Vec::new();
-    for f in 0..9 {
-        let boxes = if (1..4).contains(&f) { vec![couch.clone()] } else { vec![chair(70.0, 95.0)] };
+    for f in 0..10 {
+        let boxes = if (1..5).contains(&f) { vec![couch.clone()] } else { vec![chair(70.0, 95.0)] };
         cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), |r| {
             Ok(match r {
                 Request::StartStep { .. } => Reply::StepStarted { goal: None },
@@ -312,6 +312,23 @@ fn a_candidate_another_class_outvotes_is_dropped_and_its_place_ignored() {
     assert!(!events(&mut m).iter().any(|e| matches!(e, Event::TargetSeen { .. })));
     assert_eq!(keys.len(), 6, "located in every frame with a chair box");
     assert!(!keys[0].contains('#') && keys[1..].iter().all(|k| k.ends_with("#1")), "{keys:?}");
+}
+
+#[test]
+fn three_couch_frames_against_one_chair_sighting_do_not_drop_a_real_chair() {
+    // Chair, then couch three times, then chairs: at the shipped detector's
+    // confusion rate (one in five) the odds after 1 : 3 are 16 : 1 for a
+    // couch, and a real chair shows this in a few trials of a hundred
+    // (evaluation, indoor, trial 18). It is watched on, and once its
+    // sightings are twice the couch frames (6 : 3) it is confirmed.
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![find(56, "chair")]);
+    let couch = Detection { class_id: 57, label: "couch".into(), ..chair(70.0, 95.0) };
+    for f in 0..9u32 {
+        let boxes = if (1..4).contains(&f) { vec![couch.clone()] } else { vec![chair(70.0, 95.0)] };
+        cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), tally(|_| Vector3::new(3.5, 0.0, 0.5), f, boxes));
+        assert_eq!(seen(&mut m), usize::from(f == 8), "frame {f}");
+    }
 }
 
 #[test]
@@ -432,6 +449,24 @@ fn an_unseen_target_is_searched_for_boundedly_then_asked_about() {
     // Waiting for the user: the robot idles and no stage is asked anything.
     let (cmd, asked) = cycle(&mut m, &p, at(100.0, 0.0, 0.0, 0.0), blind(|_| unreachable!()));
     assert!(asked.is_empty() && !cmd.active && cmd.twist == Twist::ZERO);
+}
+
+#[test]
+fn a_scan_turn_with_no_room_to_turn_looks_at_once_and_the_search_ends_in_a_question() {
+    // Wedged: every drive answers BLOCKED. Each scan turn looks from where
+    // the robot stands at once rather than after the turn's time limit, so
+    // the exploration asks within seconds instead of waiting out every turn.
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![find(1, "bicycle")]);
+    let mut frame = 0u32;
+    while !m.is_awaiting() {
+        let stamp = f64::from(frame) * 0.2;
+        assert!(stamp < 40.0, "asked by {stamp} s");
+        cycle(&mut m, &p, at(stamp, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Blocked, 0.0, 1.0)));
+        frame += 1;
+    }
+    // 12 turns of 4 s each for three look-arounds would take 144 s.
+    assert!(f64::from(frame) * 0.2 < 40.0);
 }
 
 #[test]
