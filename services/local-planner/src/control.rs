@@ -36,10 +36,13 @@
 //!   out, for the odometry's slip since it was seen). Before any turn in
 //!   place the disc must be free of obstacle cells (this frame's or
 //!   remembered); if it is not, the robot first
-//!   moves straight away from the nearest such cell at `escape_speed`
-//!   (backwards only where no remembered cell lies behind it), and reports
-//!   BLOCKED where it can do neither, rather than grinding a corner along a
-//!   parked car during a look-around.
+//!   moves straight, at `escape_speed`, by the shorter of the forward and
+//!   the backward move that leaves the disc free (away from the nearest
+//!   cell when they are equal) with the body's lane free that far, and
+//!   reports BLOCKED where neither does within the disc's diameter (backing,
+//!   where only memory knows the floor, within `near_memory_m` less the
+//!   disc's radius, 0.35 m), rather than grinding a corner along a parked
+//!   car during a look-around.
 //! - Footprint guard: the paths keep a 0.45 m tube around the robot's centre
 //!   clear, but the Husky's corners reach 0.60 m, and a path that grazes an
 //!   obstacle diagonally ahead (or a goal beside a parked car) lets a corner
@@ -455,13 +458,12 @@ enum Sweep {
 
 impl RobotState {
     /// `None` when a turn in place is free to go; otherwise how to clear the
-    /// disc first: a straight move away from the nearest cell in it, or
-    /// BLOCKED when the way out is taken too.
+    /// disc first: the shorter straight move (forward or back) that clears
+    /// it, or BLOCKED when neither does within `SWEEP_ESCAPE_MAX_M` (backing,
+    /// within `near_memory_m − sweep_radius_m`) with the body's lane free.
     fn sweep(&self, input: &StepInput<'_>, p: &FollowParams) -> Option<Sweep> {
         // A remembered cell carries the odometry's drift since it was seen.
-        let r2_now = (p.sweep_radius_m * p.sweep_radius_m) as f32;
         let r_mem = p.sweep_radius_m + p.memory_drift_m;
-        let r2_mem = (r_mem * r_mem) as f32;
         // A person gets a wider berth than furniture: their place (the
         // tracker's) counts `PeopleParams::radius_m` nearer, since people
         // sway and step while the corners swing.
@@ -475,22 +477,65 @@ impl RobotState {
                 Cell { x: near.x as f32, y: near.y as f32, blocking: 2, low: false, no_go: false, person: 1 }
             })
             .collect();
-        let nearest = self
+        // Each cell with the radius it must keep outside of.
+        let (r_now, r_mem) = (p.sweep_radius_m as f32, r_mem as f32);
+        let cells: Vec<(f32, f32, f32)> = self
             .cloud
             .cells
             .iter()
             .enumerate()
-            .filter(|(i, c)| c.x * c.x + c.y * c.y < if *i < self.measured_cells { r2_now } else { r2_mem })
-            .map(|(_, c)| c)
-            .chain(people.iter().filter(|c| c.x * c.x + c.y * c.y < r2_now))
-            .min_by(|a, b| (a.x * a.x + a.y * a.y).total_cmp(&(b.x * b.x + b.y * b.y)))?;
-        // Away from it along the robot's axis; the way out must be free for
-        // the robot's half-length plus the sweep's margin (at least 0.1 m).
-        let dir = if nearest.x > 0.0 { -1.0_f32 } else { 1.0 };
+            .map(|(i, c)| (c.x, c.y, if i < self.measured_cells { r_now } else { r_mem }))
+            .chain(people.iter().map(|c| (c.x, c.y, r_now)))
+            .collect();
+        let nearest = cells
+            .iter()
+            .filter(|(x, y, r)| x * x + y * y < r * r)
+            .min_by(|a, b| (a.0 * a.0 + a.1 * a.1).total_cmp(&(b.0 * b.0 + b.1 * b.1)))?;
+        // Straight along the robot's axis, the shortest move either way that
+        // leaves every cell outside the disc, if the body's lane is free
+        // that far (its half-length plus the sweep's margin, at least 0.1 m,
+        // beyond). Moving away from the nearest cell alone flipped between
+        // two obstacles ahead and behind, 3 cm each way, for over a minute
+        // (evaluation, garage, trial 3: a parked car ahead-left, the
+        // bicycle behind-right); the shortest clearing move does not flip,
+        // since moving along it shortens it.
         let reach = (p.half_length_m + (p.sweep_radius_m - p.half_length_m).max(0.1)) as f32;
         let lane = p.half_width_m as f32 + 0.05;
-        let taken = self.cloud.cells.iter().any(|c| c.x * dir > 0.0 && c.x * dir < reach && c.y.abs() < lane);
-        Some(if taken { Sweep::Blocked } else { Sweep::Escape(f64::from(dir) * p.escape_speed) })
+        // Behind the camera the disc is known only from memory, kept for
+        // long only within `near_memory_m` of the robot: backing out, the
+        // disc where the robot ends must lie within it (a robot that backed
+        // 0.75 m along a corridor wall forgotten there turned its corner
+        // into it: evaluation, corridor, visual trial 1).
+        let back_max = (p.near_memory_m - p.sweep_radius_m).max(0.0) as f32;
+        let clearing = |dir: f32| -> Option<f32> {
+            let mut s = 0.0_f32;
+            loop {
+                let need = cells
+                    .iter()
+                    .filter_map(|&(x, y, r)| {
+                        let h = (r * r - y * y).max(0.0).sqrt();
+                        ((dir * x - s).abs() < h).then_some(dir * x + h)
+                    })
+                    .fold(s, f32::max);
+                if need <= s {
+                    break;
+                }
+                s = need + 1e-3;
+                if s > SWEEP_ESCAPE_MAX_M {
+                    return None;
+                }
+            }
+            let taken = cells.iter().any(|&(x, y, _)| dir * x > 0.0 && dir * x < s + reach && y.abs() < lane);
+            (!taken && (dir > 0.0 || s <= back_max)).then_some(s)
+        };
+        let away = if nearest.0 > 0.0 { -1.0_f32 } else { 1.0 };
+        let dir = match (clearing(away), clearing(-away)) {
+            (Some(a), Some(b)) if b + 0.01 < a => -away,
+            (Some(_), _) => away,
+            (None, Some(_)) => -away,
+            (None, None) => return Some(Sweep::Blocked),
+        };
+        Some(Sweep::Escape(f64::from(dir) * p.escape_speed))
     }
 }
 
@@ -579,6 +624,10 @@ impl RobotState {
         self.guard(v, 0.0, dt, p, &|_, _| true)
     }
 }
+
+/// The longest straight move that may clear the sweep disc before a turn
+/// in place, m (its diameter): farther, the turn is BLOCKED.
+const SWEEP_ESCAPE_MAX_M: f32 = 1.3;
 
 /// Side of the `odom` grid the memory keeps one cell per, m (the cloud's voxel).
 const MEMORY_VOXEL: f64 = 0.05;
@@ -1382,6 +1431,71 @@ mod tests {
             None,
             "one box (a false positive?) is no person yet"
         );
+    }
+
+    #[test]
+    fn a_turn_wedged_between_two_obstacles_backs_out_one_way_not_both() {
+        let p = FollowParams::default();
+        let wall = |x0: f32, y: f32, n: usize| -> Vec<Cell> {
+            (0..n)
+                .map(|i| Cell { x: x0 + 0.05 * i as f32, y, blocking: 10, low: false, no_go: false, person: 0 })
+                .collect()
+        };
+        // A parked car's corner ahead-left (0.632 m off), its side running
+        // away from the robot's axis, and a bicycle's end behind-right
+        // (0.638 m off): both in the 0.65 m disc.
+        let mut cells: Vec<Cell> = (0..20)
+            .map(|i| Cell {
+                x: 0.25 + 0.0475 * i as f32,
+                y: 0.58 + 0.0155 * i as f32,
+                blocking: 10,
+                low: false,
+                no_go: false,
+                person: 0,
+            })
+            .collect();
+        cells.push(Cell { x: -0.48, y: -0.42, blocking: 10, low: false, no_go: false, person: 0 });
+        let at = |dx: f32| {
+            let cells = cells.iter().map(|c| Cell { x: c.x - dx, ..*c }).collect();
+            RobotState {
+                cloud: ObstacleCloud { cells, ..ObstacleCloud::default() },
+                measured_cells: 21,
+                ..RobotState::default()
+            }
+        };
+        let empty = ObstacleCloud::default();
+        let input = StepInput {
+            stamp: 0.0,
+            pose: Pose2::new(0.0, 0.0, 0.0),
+            goal: GoalSpec {
+                pose: Pose2::new(0.0, 0.0, -1.3),
+                position_tolerance: 0.3,
+                yaw_tolerance: 0.2,
+                rotation_only: true,
+            },
+            cloud: &empty,
+            max_speed: 0.0,
+            view: view_ahead(),
+        };
+        // The nearest cell is the car's corner, ahead: moving away from it
+        // backs toward the bicycle, whose end is then the nearest, and the
+        // robot went 3 cm each way for ever. Going on clears the disc past
+        // the car's corner (about 0.5 m); backing out would take 1 m past
+        // the bicycle. After a 3 cm step either way the answer is the same.
+        for dx in [0.0, 0.03, 0.06, -0.03] {
+            let state = at(dx);
+            assert_eq!(state.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "moved {dx} m");
+        }
+        // With the car's side running on close beside the lane and a crate
+        // 0.9 m behind, neither way clears the disc: BLOCKED.
+        let mut boxed = wall(-0.2, 0.5, 40);
+        boxed.extend(wall(-1.0, 0.0, 1));
+        let state = RobotState {
+            cloud: ObstacleCloud { cells: boxed, ..ObstacleCloud::default() },
+            measured_cells: 41,
+            ..RobotState::default()
+        };
+        assert_eq!(state.sweep(&input, &p), Some(Sweep::Blocked));
     }
 
     #[test]
