@@ -1390,6 +1390,23 @@ mod tests {
         assert_eq!(state.guard(0.0, -1.5, 0.2, &p, &|_, _| true), (0.0, -1.5));
     }
 
+    /// A turn in place at the origin to `yaw`, with no cells measured this frame.
+    fn turn_in_place_to(yaw: f64, empty: &ObstacleCloud) -> StepInput<'_> {
+        StepInput {
+            stamp: 0.0,
+            pose: Pose2::new(0.0, 0.0, 0.0),
+            goal: GoalSpec {
+                pose: Pose2::new(0.0, 0.0, yaw),
+                position_tolerance: 0.3,
+                yaw_tolerance: 0.2,
+                rotation_only: true,
+            },
+            cloud: empty,
+            max_speed: 0.0,
+            view: view_ahead(),
+        }
+    }
+
     #[test]
     fn a_remembered_cell_counts_farther_out_for_a_turn_in_place() {
         let p = FollowParams::default();
@@ -1398,19 +1415,7 @@ mod tests {
         let cloud = ObstacleCloud { cells: vec![cell], ..ObstacleCloud::default() };
         let mut state = RobotState { cloud, measured_cells: 1, ..RobotState::default() };
         let empty = ObstacleCloud::default();
-        let input = StepInput {
-            stamp: 0.0,
-            pose: Pose2::new(0.0, 0.0, 0.0),
-            goal: GoalSpec {
-                pose: Pose2::new(0.0, 0.0, 3.0),
-                position_tolerance: 0.3,
-                yaw_tolerance: 0.2,
-                rotation_only: true,
-            },
-            cloud: &empty,
-            max_speed: 0.0,
-            view: view_ahead(),
-        };
+        let input = turn_in_place_to(3.0, &empty);
         assert_eq!(state.sweep(&input, &p), None, "measured this frame: the turn may go");
         state.measured_cells = 0;
         assert_eq!(state.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "remembered: move away first");
@@ -1464,19 +1469,7 @@ mod tests {
             }
         };
         let empty = ObstacleCloud::default();
-        let input = StepInput {
-            stamp: 0.0,
-            pose: Pose2::new(0.0, 0.0, 0.0),
-            goal: GoalSpec {
-                pose: Pose2::new(0.0, 0.0, -1.3),
-                position_tolerance: 0.3,
-                yaw_tolerance: 0.2,
-                rotation_only: true,
-            },
-            cloud: &empty,
-            max_speed: 0.0,
-            view: view_ahead(),
-        };
+        let input = turn_in_place_to(-1.3, &empty);
         // The nearest cell is the car's corner, ahead: moving away from it
         // backs toward the bicycle, whose end is then the nearest, and the
         // robot went 3 cm each way for ever. Going on clears the disc past
