@@ -507,15 +507,18 @@ impl RobotState {
         // 0.75 m along a corridor wall forgotten there turned its corner
         // into it: evaluation, corridor, visual trial 1).
         let back_max = (p.near_memory_m - p.sweep_radius_m).max(0.0) as f32;
+        // Each cell the disc can take in along the axis: its x and the half
+        // chord the disc's circle cuts at its y (the disc centred at c holds
+        // it while |x − c| < h).
+        let chords: Vec<(f32, f32)> =
+            cells.iter().filter(|(_, y, r)| y.abs() < *r).map(|&(x, y, r)| (x, (r * r - y * y).sqrt())).collect();
         let clearing = |dir: f32| -> Option<f32> {
             let mut s = 0.0_f32;
             loop {
-                let need = cells
+                let need = chords
                     .iter()
-                    .filter_map(|&(x, y, r)| {
-                        let h = (r * r - y * y).max(0.0).sqrt();
-                        ((dir * x - s).abs() < h).then_some(dir * x + h)
-                    })
+                    .filter(|&&(x, h)| (dir * x - s).abs() < h)
+                    .map(|&(x, h)| dir * x + h)
                     .fold(s, f32::max);
                 if need <= s {
                     break;
@@ -1459,7 +1462,7 @@ mod tests {
                 person: 0,
             })
             .collect();
-        cells.push(Cell { x: -0.48, y: -0.42, blocking: 10, low: false, no_go: false, person: 0 });
+        cells.extend(wall(-0.48, -0.42, 1));
         let at = |dx: f32| {
             let cells = cells.iter().map(|c| Cell { x: c.x - dx, ..*c }).collect();
             RobotState {
@@ -1480,7 +1483,7 @@ mod tests {
             assert_eq!(state.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "moved {dx} m");
         }
         // With the car's side running on close beside the lane and a crate
-        // 0.9 m behind, neither way clears the disc: BLOCKED.
+        // 1 m behind, neither way clears the disc: BLOCKED.
         let mut boxed = wall(-0.2, 0.5, 40);
         boxed.extend(wall(-1.0, 0.0, 1));
         let state = RobotState {
