@@ -56,14 +56,16 @@
 //!   (≥ 2 voxels) or a no-go cell (a marked zone, a cable: the paths keep
 //!   their 0.45 m tube off it, but a corner swinging round a cable's end
 //!   entered it — soft contact, docs/design.md §6), this frame's or
-//!   remembered, that it does not already cover, the command is reduced — the turn alone, the straight part
-//!   alone, or a stop. A robot stopped by the guard within the goal's
-//!   position tolerance has reached it (as close as its body fits); farther
-//!   away it creeps straight on toward the goal's side at `escape_speed`
-//!   where the guard lets it (a path bending away from a zone beside the
-//!   robot swings the rear corner into it, and stopped there it would wait
-//!   for ever: `RobotState::creep`), and the progress watchdog takes over
-//!   where it cannot.
+//!   remembered, that it does not already cover, the command is reduced —
+//!   the turn alone, the straight part alone, or a stop. A robot stopped by
+//!   the guard within the goal's position tolerance has reached it (as
+//!   close as its body fits); farther away it creeps on toward the goal's
+//!   side at `escape_speed` where the guard lets it — forward on the
+//!   sharpest arc toward the goal that stays clear for `CREEP_HOLD_S`,
+//!   else straight (a path bending away from a zone beside the robot swings
+//!   the rear corner into it, and stopped there it would wait for ever:
+//!   `RobotState::creep`) — and the progress watchdog takes over where it
+//!   cannot.
 //! - Goals beside obstacles: a goal whose footprint (the rectangle at the
 //!   goal, facing the goal's heading, plus `guard_margin_m`) would hold a
 //!   blocking or no-go cell — an approach goal on the line to a hydrant that stands
@@ -607,26 +609,67 @@ impl RobotState {
     /// accepts it), else the first such of: the turn alone, the straight
     /// part alone, a stop.
     fn guard(&self, v: f64, w: f64, dt: f64, p: &FollowParams, ok: &dyn Fn(f64, f64) -> bool) -> (f64, f64) {
-        // One frame, then as long as stopping takes: the linear part at
-        // `max_accel`, the turn at `yaw_decel` (a spot turn's rear corner
-        // swings on while it brakes).
-        let horizon = |v: f64, w: f64| dt + (v.abs() / (2.0 * p.max_accel)).max(w.abs() / (2.0 * p.yaw_decel));
         [(v, w), (0.0, w), (v, 0.0)]
             .into_iter()
-            .find(|&(v, w)| (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, horizon(v, w), p) && ok(v, w))
+            .find(|&(v, w)| {
+                (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, self.stop_horizon(v, w, dt, p), p) && ok(v, w)
+            })
             .unwrap_or((0.0, 0.0))
+    }
+
+    /// How long the guard follows an arc: one frame, then as long as
+    /// stopping takes — the linear part at `max_accel`, the turn at
+    /// `yaw_decel` (a spot turn's rear corner swings on while it brakes), s.
+    fn stop_horizon(&self, v: f64, w: f64, dt: f64, p: &FollowParams) -> f64 {
+        dt + (v.abs() / (2.0 * p.max_accel)).max(w.abs() / (2.0 * p.yaw_decel))
     }
 
     /// What the robot does when the footprint guard stops every part of a
     /// path's command: a path that bends away from a zone the robot stands
     /// beside swings the rear corner into it, and stopped there it would
-    /// wait for ever. It creeps straight on (`escape_speed`) toward the
-    /// goal's side, where the guard lets it, until the turn is free.
+    /// wait for ever. It creeps on (`escape_speed`) toward the goal's side,
+    /// where the guard lets it, until the turn is free: forward, on the
+    /// sharpest of `CREEP_CURVATURES` that turns toward the goal and keeps
+    /// the footprint clear, else straight; backward, straight. A driver pulls out of a tight spot
+    /// that way: a spot turn swings the rear corner out by the body's
+    /// half-length, an arc of radius R by far less, while straight on can
+    /// only close in on what stands ahead (evaluation, lab: a robot that
+    /// stopped before a chair with a cable along its rear-left crept straight
+    /// into the chair and wedged itself there).
     fn creep(&self, goal_base: &Vector2<f64>, dt: f64, p: &FollowParams) -> (f64, f64) {
-        let v = if goal_base.x >= 0.0 { p.escape_speed } else { -p.escape_speed };
-        self.guard(v, 0.0, dt, p, &|_, _| true)
+        if goal_base.x < 0.0 {
+            return self.guard(-p.escape_speed, 0.0, dt, p, &|_, _| true);
+        }
+        let side = if goal_base.y.atan2(goal_base.x).abs() < CREEP_STRAIGHT_RAD { 0.0 } else { goal_base.y.signum() };
+        let v = p.escape_speed;
+        let moves: Vec<(f64, f64)> = CREEP_CURVATURES
+            .iter()
+            .filter(|_| side != 0.0)
+            .map(|k| (v, side * k * v))
+            .chain(std::iter::once((v, 0.0)))
+            .collect();
+        // First a move that stays clear while held for `CREEP_HOLD_S` (a
+        // sharp arc clear for one frame can swing the rear onto the cable
+        // the next), then one clear for a frame and its stop.
+        let clear_for =
+            |&(v, w): &(f64, f64), hold: f64| !self.footprint_hits(v, w, hold.max(self.stop_horizon(v, w, dt, p)), p);
+        moves
+            .iter()
+            .find(|m| clear_for(m, CREEP_HOLD_S))
+            .or_else(|| moves.iter().find(|m| clear_for(m, 0.0)))
+            .copied()
+            .unwrap_or((0.0, 0.0))
     }
 }
+
+/// The curvatures a creep tries toward the goal's side, sharpest first,
+/// 1/m (radii 0.5, 1 and 2 m); the goal within `CREEP_STRAIGHT_RAD` of the
+/// heading, it creeps straight.
+const CREEP_CURVATURES: [f64; 3] = [2.0, 1.0, 0.5];
+const CREEP_STRAIGHT_RAD: f64 = 0.1;
+/// How long a creep's arc should stay clear if held, s (0.15 m of travel
+/// at `escape_speed`).
+const CREEP_HOLD_S: f64 = 1.0;
 
 /// The longest straight move that may clear the sweep disc before a turn
 /// in place, m (its diameter): farther, the turn is BLOCKED.
@@ -1371,6 +1414,48 @@ mod tests {
         let mut walled = state.clone();
         walled.cloud.cells.push(Cell { x: 0.57, y: 0.0, blocking: 5, low: false, no_go: false, person: 0 });
         assert_eq!(walled.creep(&Vector2::new(3.4, 0.5), 0.2, &p), (0.0, 0.0));
+    }
+
+    #[test]
+    fn a_robot_between_a_cable_and_a_chair_pulls_out_on_an_arc_toward_the_goal() {
+        let p = FollowParams::default();
+        // A floor cable along the rear-left (no-go), running farther out
+        // ahead, and a chair's corner ahead-left, as a robot stands after
+        // stopping before a chair beside a cable (evaluation, lab).
+        let mut cells: Vec<Cell> = (0..9)
+            .map(|i| {
+                let x = -0.36 + 0.05 * i as f32;
+                Cell { x, y: 0.45 + 0.5 * (x + 0.36), blocking: 0, low: false, no_go: true, person: 0 }
+            })
+            .collect();
+        cells.extend([(0.47, 0.44), (0.51, 0.40), (0.55, 0.38)].map(|(x, y)| Cell {
+            x,
+            y,
+            blocking: 13,
+            low: false,
+            no_go: false,
+            person: 0,
+        }));
+        let state = RobotState { cloud: ObstacleCloud { cells, ..ObstacleCloud::default() }, ..RobotState::default() };
+        let goal = Vector2::new(1.21, -0.62);
+        // Turning right toward the goal swings the rear-left corner over the
+        // cable, on the spot or on the path's tight arc.
+        assert_eq!(state.guard(0.0, -1.0, 0.2, &p, &|_, _| true), (0.0, 0.0));
+        assert_eq!(state.guard(0.1, -1.0, 0.2, &p, &|_, _| true), (0.0, 0.0));
+        // It creeps on an arc toward the goal (radius 1 m), not straight at
+        // the chair, and that arc keeps the footprint off both while held
+        // for a second (5 frames).
+        let (v, w) = state.creep(&goal, 0.2, &p);
+        assert_eq!((v, w), (p.escape_speed, -p.escape_speed));
+        assert!(!state.footprint_hits(v, w, 1.0, &p));
+        assert!(state.footprint_hits(v, 0.0, state.stop_horizon(v, 0.0, 0.2, &p), &p));
+        // The sharper 0.5 m arc is clear for a frame, but held it swings the
+        // rear-left corner onto the cable.
+        assert!(!state.footprint_hits(v, 2.0 * w, state.stop_horizon(v, 2.0 * w, 0.2, &p), &p));
+        assert!(state.footprint_hits(v, 2.0 * w, 1.0, &p));
+        // A goal dead ahead is crept to straight.
+        let clear = RobotState::default();
+        assert_eq!(clear.creep(&Vector2::new(2.0, 0.05), 0.2, &p), (p.escape_speed, 0.0));
     }
 
     #[test]
