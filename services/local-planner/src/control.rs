@@ -630,12 +630,15 @@ impl RobotState {
     /// wait for ever. It creeps on (`escape_speed`) toward the goal's side,
     /// where the guard lets it, until the turn is free: forward, on the
     /// sharpest of `CREEP_CURVATURES` that turns toward the goal and keeps
-    /// the footprint clear, else straight; backward, straight. A driver pulls out of a tight spot
-    /// that way: a spot turn swings the rear corner out by the body's
-    /// half-length, an arc of radius R by far less, while straight on can
-    /// only close in on what stands ahead (evaluation, lab: a robot that
-    /// stopped before a chair with a cable along its rear-left crept straight
-    /// into the chair and wedged itself there).
+    /// the footprint clear, else straight; backward, straight. A driver
+    /// pulls out of a tight spot that way: per radian of turn the rear
+    /// corner swings out as far on an arc as on the spot, but on the arc the
+    /// body moves forward meanwhile, so the corner follows something that
+    /// runs alongside and outward (a cable along the rear-left) instead of
+    /// sweeping over it, while straight on can only close in on what stands
+    /// ahead (evaluation, lab: a robot that stopped before a chair with a
+    /// cable along its rear-left crept straight into the chair and wedged
+    /// itself there).
     fn creep(&self, goal_base: &Vector2<f64>, dt: f64, p: &FollowParams) -> (f64, f64) {
         if goal_base.x < 0.0 {
             return self.guard(-p.escape_speed, 0.0, dt, p, &|_, _| true);
