@@ -612,16 +612,9 @@ impl RobotState {
         [(v, w), (0.0, w), (v, 0.0)]
             .into_iter()
             .find(|&(v, w)| {
-                (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, self.stop_horizon(v, w, dt, p), p) && ok(v, w)
+                (v != 0.0 || w != 0.0) && !self.footprint_hits(v, w, stop_horizon(v, w, dt, p), p) && ok(v, w)
             })
             .unwrap_or((0.0, 0.0))
-    }
-
-    /// How long the guard follows an arc: one frame, then as long as
-    /// stopping takes — the linear part at `max_accel`, the turn at
-    /// `yaw_decel` (a spot turn's rear corner swings on while it brakes), s.
-    fn stop_horizon(&self, v: f64, w: f64, dt: f64, p: &FollowParams) -> f64 {
-        dt + (v.abs() / (2.0 * p.max_accel)).max(w.abs() / (2.0 * p.yaw_decel))
     }
 
     /// What the robot does when the footprint guard stops every part of a
@@ -645,17 +638,13 @@ impl RobotState {
         }
         let side = if goal_base.y.atan2(goal_base.x).abs() < CREEP_STRAIGHT_RAD { 0.0 } else { goal_base.y.signum() };
         let v = p.escape_speed;
-        let moves: Vec<(f64, f64)> = CREEP_CURVATURES
-            .iter()
-            .filter(|_| side != 0.0)
-            .map(|k| (v, side * k * v))
-            .chain(std::iter::once((v, 0.0)))
-            .collect();
+        let arcs: &[f64] = if side == 0.0 { &[] } else { &CREEP_CURVATURES };
+        let moves: Vec<(f64, f64)> = arcs.iter().map(|k| (v, side * k * v)).chain([(v, 0.0)]).collect();
         // First a move that stays clear while held for `CREEP_HOLD_S` (a
         // sharp arc clear for one frame can swing the rear onto the cable
         // the next), then one clear for a frame and its stop.
         let clear_for =
-            |&(v, w): &(f64, f64), hold: f64| !self.footprint_hits(v, w, hold.max(self.stop_horizon(v, w, dt, p)), p);
+            |&(v, w): &(f64, f64), hold: f64| !self.footprint_hits(v, w, hold.max(stop_horizon(v, w, dt, p)), p);
         moves
             .iter()
             .find(|m| clear_for(m, CREEP_HOLD_S))
@@ -663,6 +652,13 @@ impl RobotState {
             .copied()
             .unwrap_or((0.0, 0.0))
     }
+}
+
+/// How long the guard follows an arc: one frame, then as long as stopping
+/// takes — the linear part at `max_accel`, the turn at `yaw_decel` (a spot
+/// turn's rear corner swings on while it brakes), s.
+fn stop_horizon(v: f64, w: f64, dt: f64, p: &FollowParams) -> f64 {
+    dt + (v.abs() / (2.0 * p.max_accel)).max(w.abs() / (2.0 * p.yaw_decel))
 }
 
 /// The curvatures a creep tries toward the goal's side, sharpest first,
@@ -1451,10 +1447,10 @@ mod tests {
         let (v, w) = state.creep(&goal, 0.2, &p);
         assert_eq!((v, w), (p.escape_speed, -p.escape_speed));
         assert!(!state.footprint_hits(v, w, 1.0, &p));
-        assert!(state.footprint_hits(v, 0.0, state.stop_horizon(v, 0.0, 0.2, &p), &p));
+        assert!(state.footprint_hits(v, 0.0, stop_horizon(v, 0.0, 0.2, &p), &p));
         // The sharper 0.5 m arc is clear for a frame, but held it swings the
         // rear-left corner onto the cable.
-        assert!(!state.footprint_hits(v, 2.0 * w, state.stop_horizon(v, 2.0 * w, 0.2, &p), &p));
+        assert!(!state.footprint_hits(v, 2.0 * w, stop_horizon(v, 2.0 * w, 0.2, &p), &p));
         assert!(state.footprint_hits(v, 2.0 * w, 1.0, &p));
         // A goal dead ahead is crept to straight.
         let clear = RobotState::default();
