@@ -38,11 +38,13 @@
 //!   remembered); if it is not, the robot first
 //!   moves straight, at `escape_speed`, by the shorter of the forward and
 //!   the backward move that leaves the disc free (away from the nearest
-//!   cell when they are equal) with the body's lane free that far, and
-//!   reports BLOCKED where neither does within the disc's diameter (backing,
+//!   cell when they are equal) with the body's lane free that far (backing,
 //!   where only memory knows the floor, within `near_memory_m` less the
-//!   disc's radius, 0.35 m), rather than grinding a corner along a parked
-//!   car during a look-around.
+//!   disc's radius, 0.35 m). Where neither does within the disc's diameter,
+//!   it turns on the sharpest forward arc toward the turn's side that keeps
+//!   the footprint clear (`RobotState::arc_turn`), and reports BLOCKED where
+//!   no arc does either, rather than grinding a corner along a parked car
+//!   during a look-around.
 //! - Footprint guard: the paths keep a 0.45 m tube around the robot's centre
 //!   clear, but the Husky's corners reach 0.60 m, and a path that grazes an
 //!   obstacle diagonally ahead (or a goal beside a parked car) lets a corner
@@ -454,16 +456,30 @@ pub struct RobotState {
 enum Sweep {
     /// Move straight at this speed (m/s, negative: backwards) to clear it.
     Escape(f64),
+    /// Neither straight move clears it: turn on this forward arc (v, ω)
+    /// instead, which keeps the footprint clear where the spot turn's
+    /// corners would sweep over something.
+    Arc(f64, f64),
     /// The way out is taken too.
     Blocked,
 }
 
 impl RobotState {
-    /// `None` when a turn in place is free to go; otherwise how to clear the
-    /// disc first: the shorter straight move (forward or back) that clears
-    /// it, or BLOCKED when neither does within `SWEEP_ESCAPE_MAX_M` (backing,
-    /// within `near_memory_m − sweep_radius_m`) with the body's lane free.
-    fn sweep(&self, input: &StepInput<'_>, p: &FollowParams) -> Option<Sweep> {
+    /// `None` when a turn in place (`turn`, rad, signed) is free to go;
+    /// otherwise how to clear the disc first: the shorter straight move
+    /// (forward or back) that clears it, or when neither does within
+    /// `SWEEP_ESCAPE_MAX_M` (backing, within `near_memory_m − sweep_radius_m`)
+    /// with the body's lane free, the turn made on a forward arc
+    /// ([`RobotState::arc_turn`]; `goal`: the position the turn faces, base
+    /// link), or BLOCKED when no arc keeps clear either.
+    fn sweep(
+        &self,
+        input: &StepInput<'_>,
+        p: &FollowParams,
+        turn: f64,
+        goal: Option<&Vector2<f64>>,
+        dt: f64,
+    ) -> Option<Sweep> {
         // A remembered cell carries the odometry's drift since it was seen.
         let r_mem = p.sweep_radius_m + p.memory_drift_m;
         // A person gets a wider berth than furniture: their place (the
@@ -538,7 +554,9 @@ impl RobotState {
             (Some(a), Some(b)) if b + 0.01 < a => -away,
             (Some(_), _) => away,
             (None, Some(_)) => -away,
-            (None, None) => return Some(Sweep::Blocked),
+            (None, None) => {
+                return Some(self.arc_turn(turn, goal, dt, p).map_or(Sweep::Blocked, |(v, w)| Sweep::Arc(v, w)));
+            }
         };
         Some(Sweep::Escape(f64::from(dir) * p.escape_speed))
     }
@@ -547,11 +565,17 @@ impl RobotState {
 impl RobotState {
     /// Whether the arc (v, ω) held for `horizon` s brings a cell the body
     /// must keep out of (an obstacle or a no-go region, [`Cell::keeps_out`])
-    /// into the (margin-inflated) footprint that it does not cover now.
+    /// into the (margin-inflated) footprint that it does not cover now, or
+    /// a cell already within the margin into the body itself (a box 3 cm
+    /// ahead of the bumper is not to be driven into because it stands in
+    /// the margin already; a cell inside the body — noise, or contact made —
+    /// does not hold the robot).
     fn footprint_hits(&self, v: f64, w: f64, horizon: f64, p: &FollowParams) -> bool {
         const SAMPLES: usize = 6;
         let (hl, hw) = ((p.half_length_m + p.guard_margin_m) as f32, (p.half_width_m + p.guard_margin_m) as f32);
+        let (bl, bw) = (p.half_length_m as f32, p.half_width_m as f32);
         let inside = |x: f32, y: f32| x.abs() <= hl && y.abs() <= hw;
+        let in_body = |x: f32, y: f32| x.abs() <= bl && y.abs() <= bw;
         let poses: Vec<(f32, f32, f32, f32)> = (1..=SAMPLES)
             .map(|k| {
                 let t = horizon * k as f64 / SAMPLES as f64;
@@ -564,11 +588,12 @@ impl RobotState {
         self.cloud
             .cells
             .iter()
-            .filter(|c| c.keeps_out() && c.x * c.x + c.y * c.y <= reach * reach && !inside(c.x, c.y))
+            .filter(|c| c.keeps_out() && c.x * c.x + c.y * c.y <= reach * reach && !in_body(c.x, c.y))
             .any(|c| {
+                let within: &dyn Fn(f32, f32) -> bool = if inside(c.x, c.y) { &in_body } else { &inside };
                 poses.iter().any(|&(x, y, cs, sn)| {
                     let (dx, dy) = (c.x - x, c.y - y);
-                    inside(cs * dx + sn * dy, -sn * dx + cs * dy)
+                    within(cs * dx + sn * dy, -sn * dx + cs * dy)
                 })
             })
     }
@@ -643,14 +668,39 @@ impl RobotState {
         // First a move that stays clear while held for `CREEP_HOLD_S` (a
         // sharp arc clear for one frame can swing the rear onto the cable
         // the next), then one clear for a frame and its stop.
-        let clear_for =
-            |&(v, w): &(f64, f64), hold: f64| !self.footprint_hits(v, w, hold.max(stop_horizon(v, w, dt, p)), p);
         moves
             .iter()
-            .find(|m| clear_for(m, CREEP_HOLD_S))
-            .or_else(|| moves.iter().find(|m| clear_for(m, 0.0)))
+            .find(|&&m| self.clear_for(m, CREEP_HOLD_S, dt, p))
+            .or_else(|| moves.iter().find(|&&m| self.clear_for(m, 0.0, dt, p)))
             .copied()
             .unwrap_or((0.0, 0.0))
+    }
+
+    /// A turn in place toward `turn`'s side that its sweep forbids (the
+    /// corners of a spot turn reach every point of the sweep disc's rim,
+    /// but on an arc of radius R the rear corner swings out by about
+    /// l² / 2 (R + w) only: l the half-length, w the half-width — 0.09 m at
+    /// R = 1 m), made on the sharpest of `CREEP_CURVATURES` forward at
+    /// `escape_speed` that keeps the footprint clear while held for
+    /// `CREEP_HOLD_S`. Toward a goal position (`goal`, base link) only an arc
+    /// whose circle leaves it outside: inside, the robot would circle it for
+    /// ever. `None` when no arc is clear (evaluation, lab: a robot that ended
+    /// a move beside a cable along its left, told to turn right, was BLOCKED
+    /// and asked the user).
+    fn arc_turn(&self, turn: f64, goal: Option<&Vector2<f64>>, dt: f64, p: &FollowParams) -> Option<(f64, f64)> {
+        let side = turn.signum();
+        let v = p.escape_speed;
+        CREEP_CURVATURES
+            .iter()
+            .filter(|&&k| goal.is_none_or(|g| (g - Vector2::new(0.0, side / k)).norm() > 1.0 / k))
+            .map(|&k| (v, side * k * v))
+            .find(|&m| self.clear_for(m, CREEP_HOLD_S, dt, p))
+    }
+
+    /// Whether the footprint stays clear on the arc (v, ω) held for `hold`
+    /// s, or for a frame and its stop if that is longer.
+    fn clear_for(&self, (v, w): (f64, f64), hold: f64, dt: f64, p: &FollowParams) -> bool {
+        !self.footprint_hits(v, w, hold.max(stop_horizon(v, w, dt, p)), p)
     }
 }
 
@@ -671,7 +721,7 @@ const CREEP_STRAIGHT_RAD: f64 = 0.1;
 const CREEP_HOLD_S: f64 = 1.0;
 
 /// The longest straight move that may clear the sweep disc before a turn
-/// in place, m (its diameter): farther, the turn is BLOCKED.
+/// in place, m (its diameter): farther, the turn goes on an arc, if one is clear.
 const SWEEP_ESCAPE_MAX_M: f32 = 1.3;
 
 /// Side of the `odom` grid the memory keeps one cell per, m (the cloud's voxel).
@@ -920,9 +970,10 @@ impl RobotState {
             if yaw_error.abs() < goal.yaw_tolerance {
                 return stop(self, out, StepStatus::Reached);
             }
-            match self.sweep(&input, p) {
+            match self.sweep(&input, p, yaw_error, None, dt) {
                 Some(Sweep::Blocked) => return stop(self, out, StepStatus::Blocked),
                 Some(Sweep::Escape(v)) => out.linear = v,
+                Some(Sweep::Arc(v, w)) => (out.linear, out.angular) = (v, w),
                 None => out.angular = clamp_turn(p.rotate_gain * yaw_error, yaw_error, p, dt),
             }
             if self.people_closer(&input, out.linear, out.angular, p) {
@@ -942,12 +993,13 @@ impl RobotState {
         self.rotating = bearing.abs() > exit;
         self.aligned |= !self.rotating;
         if self.rotating {
-            match self.sweep(&input, p) {
+            match self.sweep(&input, p, bearing, Some(&goal_base), dt) {
                 Some(Sweep::Blocked) => {
                     self.log_blocked(&input, p.sweep_radius_m, "a turn in place is blocked");
                     return stop(self, out, StepStatus::Blocked);
                 }
                 Some(Sweep::Escape(v)) => out.linear = v,
+                Some(Sweep::Arc(v, w)) => (out.linear, out.angular) = (v, w),
                 None => out.angular = clamp_turn(p.rotate_gain * bearing, bearing, p, dt),
             }
             if self.people_closer(&input, out.linear, out.angular, p) {
@@ -1503,9 +1555,17 @@ mod tests {
         let mut state = RobotState { cloud, measured_cells: 1, ..RobotState::default() };
         let empty = ObstacleCloud::default();
         let input = turn_in_place_to(3.0, &empty);
-        assert_eq!(state.sweep(&input, &p), None, "measured this frame: the turn may go");
+        assert_eq!(
+            state.sweep(&input, &p, input.goal.pose.theta, None, 0.2),
+            None,
+            "measured this frame: the turn may go"
+        );
         state.measured_cells = 0;
-        assert_eq!(state.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "remembered: move away first");
+        assert_eq!(
+            state.sweep(&input, &p, input.goal.pose.theta, None, 0.2),
+            Some(Sweep::Escape(p.escape_speed)),
+            "remembered: move away first"
+        );
         // A person standing 0.9 m to the left (their body's edge 0.6 m off,
         // the cells of this frame outside the disc): people get 0.3 m more.
         let seen = |at: Vector2<f64>, frames: u32| {
@@ -1516,10 +1576,18 @@ mod tests {
             state
         };
         let beside = seen(Vector2::new(0.0, 0.9), 3);
-        assert_eq!(beside.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "a person beside: move away first");
-        assert_eq!(seen(Vector2::new(0.0, 1.0), 3).sweep(&input, &p), None, "a person 1.0 m off: the turn may go");
         assert_eq!(
-            seen(Vector2::new(0.0, 0.9), 1).sweep(&input, &p),
+            beside.sweep(&input, &p, input.goal.pose.theta, None, 0.2),
+            Some(Sweep::Escape(p.escape_speed)),
+            "a person beside: move away first"
+        );
+        assert_eq!(
+            seen(Vector2::new(0.0, 1.0), 3).sweep(&input, &p, input.goal.pose.theta, None, 0.2),
+            None,
+            "a person 1.0 m off: the turn may go"
+        );
+        assert_eq!(
+            seen(Vector2::new(0.0, 0.9), 1).sweep(&input, &p, input.goal.pose.theta, None, 0.2),
             None,
             "one box (a false positive?) is no person yet"
         );
@@ -1564,18 +1632,84 @@ mod tests {
         // the bicycle. After a 3 cm step either way the answer is the same.
         for dx in [0.0, 0.03, 0.06, -0.03] {
             let state = at(dx);
-            assert_eq!(state.sweep(&input, &p), Some(Sweep::Escape(p.escape_speed)), "moved {dx} m");
+            assert_eq!(
+                state.sweep(&input, &p, input.goal.pose.theta, None, 0.2),
+                Some(Sweep::Escape(p.escape_speed)),
+                "moved {dx} m"
+            );
         }
         // With the car's side running on close beside the lane and a crate
-        // 1 m behind, neither way clears the disc: BLOCKED.
+        // 1 m behind, neither way clears the disc. The car's side begins
+        // beside the robot's middle, and the rear corner that swings out
+        // passes behind its end: the turn goes on the sharpest arc, 0.5 m,
+        // to the right.
         let mut boxed = wall(-0.2, 0.5, 40);
         boxed.extend(wall(-1.0, 0.0, 1));
-        let state = RobotState {
-            cloud: ObstacleCloud { cells: boxed, ..ObstacleCloud::default() },
-            measured_cells: 41,
+        let state = |cells: Vec<Cell>| RobotState {
+            measured_cells: cells.len(),
+            cloud: ObstacleCloud { cells, ..ObstacleCloud::default() },
             ..RobotState::default()
         };
-        assert_eq!(state.sweep(&input, &p), Some(Sweep::Blocked));
+        let v = p.escape_speed;
+        assert_eq!(state(boxed.clone()).sweep(&input, &p, -1.3, None, 0.2), Some(Sweep::Arc(v, -2.0 * v)));
+        // A crate across the way ahead as well: BLOCKED.
+        let mut shut = boxed;
+        shut.extend((0..21).map(|i| Cell { y: -0.5 + 0.05 * i as f32, ..wall(0.62, 0.0, 1)[0] }));
+        assert_eq!(state(shut).sweep(&input, &p, -1.3, None, 0.2), Some(Sweep::Blocked));
+    }
+
+    #[test]
+    fn a_cell_within_the_guard_margin_is_not_driven_into() {
+        let p = FollowParams::default();
+        // A box 0.03 m ahead of the bumper: inside the margin-inflated
+        // footprint already, outside the body.
+        let cell = Cell { x: 0.525, y: 0.0, blocking: 3, low: false, no_go: false, person: 0 };
+        let state = RobotState {
+            measured_cells: 1,
+            cloud: ObstacleCloud { cells: vec![cell], ..ObstacleCloud::default() },
+            ..RobotState::default()
+        };
+        assert!(state.footprint_hits(0.15, 0.0, 1.0, &p), "forward: into the body");
+        assert!(state.footprint_hits(0.15, 0.3, 1.0, &p), "forward on an arc: into the body");
+        assert!(!state.footprint_hits(-0.15, 0.0, 1.0, &p), "backing away");
+        // Inside the body (noise, or contact made): it holds nothing.
+        let touching = RobotState {
+            cloud: ObstacleCloud { cells: vec![Cell { x: 0.45, ..cell }], ..ObstacleCloud::default() },
+            ..RobotState::default()
+        };
+        assert!(!touching.footprint_hits(0.15, 0.0, 1.0, &p));
+    }
+
+    #[test]
+    fn a_turn_whose_sweep_crosses_a_cable_alongside_is_made_on_an_arc() {
+        let p = FollowParams::default();
+        // A cable on the floor along the robot's left, 0.6 m from its
+        // centre (inside the 0.65 m disc), from 1 m behind to 2 m ahead: a
+        // move ended beside it (evaluation, lab), and the next step turns
+        // right by 130°.
+        let cable: Vec<Cell> = (0..61)
+            .map(|i| Cell { x: -1.0 + 0.05 * i as f32, y: 0.6, blocking: 0, low: false, no_go: true, person: 0 })
+            .collect();
+        let state = RobotState {
+            measured_cells: cable.len(),
+            cloud: ObstacleCloud { cells: cable, ..ObstacleCloud::default() },
+            ..RobotState::default()
+        };
+        let empty = ObstacleCloud::default();
+        let input = turn_in_place_to(-2.26, &empty);
+        // Turning on the spot, the rear-left corner sweeps over the cable;
+        // no straight move clears the disc.
+        assert!(state.footprint_hits(0.0, -1.0, 2.26, &p));
+        let Some(Sweep::Arc(v, w)) = state.sweep(&input, &p, -2.26, None, 0.2) else {
+            panic!("the turn is made on an arc")
+        };
+        assert!(v > 0.0 && w < 0.0, "forward, to the right: ({v}, {w})");
+        // Held until the heading is reached (13 s at 0.15 m/s on the 0.5 m
+        // arc), that arc never reaches the cable.
+        assert!(!state.footprint_hits(v, w, 2.26 / w.abs(), &p));
+        // Facing a goal inside every arc's circle (0.4 m to the right), the
+        // robot would circle it: BLOCKED.
+        assert_eq!(state.sweep(&input, &p, -1.57, Some(&Vector2::new(0.0, -0.4)), 0.2), Some(Sweep::Blocked));
     }
 
     #[test]
