@@ -575,7 +575,6 @@ impl RobotState {
         let (hl, hw) = ((p.half_length_m + p.guard_margin_m) as f32, (p.half_width_m + p.guard_margin_m) as f32);
         let (bl, bw) = (p.half_length_m as f32, p.half_width_m as f32);
         let inside = |x: f32, y: f32| x.abs() <= hl && y.abs() <= hw;
-        let in_body = |x: f32, y: f32| x.abs() <= bl && y.abs() <= bw;
         let poses: Vec<(f32, f32, f32, f32)> = (1..=SAMPLES)
             .map(|k| {
                 let t = horizon * k as f64 / SAMPLES as f64;
@@ -588,12 +587,16 @@ impl RobotState {
         self.cloud
             .cells
             .iter()
-            .filter(|c| c.keeps_out() && c.x * c.x + c.y * c.y <= reach * reach && !in_body(c.x, c.y))
+            .filter(|c| {
+                c.keeps_out() && c.x * c.x + c.y * c.y <= reach * reach && !(c.x.abs() <= bl && c.y.abs() <= bw)
+            })
             .any(|c| {
-                let within: &dyn Fn(f32, f32) -> bool = if inside(c.x, c.y) { &in_body } else { &inside };
+                // The rectangle the cell must stay out of: the body for a
+                // cell already within the margin, else the inflated one.
+                let (l, w) = if inside(c.x, c.y) { (bl, bw) } else { (hl, hw) };
                 poses.iter().any(|&(x, y, cs, sn)| {
                     let (dx, dy) = (c.x - x, c.y - y);
-                    within(cs * dx + sn * dy, -sn * dx + cs * dy)
+                    (cs * dx + sn * dy).abs() <= l && (-sn * dx + cs * dy).abs() <= w
                 })
             })
     }
