@@ -20,6 +20,11 @@
 //!   `confirm_window` frames (a real detector misses a small or distant
 //!   object in many frames; demanding an unbroken streak would leave it
 //!   unconfirmed — docs/perception.md) → local planner until within d_s.
+//!   A drive that stops converging settles where it stands once it is
+//!   within `SETTLE_M` beyond its goal's tolerance, or — toward a confirmed
+//!   fixed target — no farther from the target than the goal is (plus
+//!   `PROGRESS_M`): the stopping distance holds there, whatever the
+//!   bearing, and a goal on a cable cannot be reached.
 //!   The detector is asked for every class, and a candidate is confirmed
 //!   only once its sightings are at least twice the frames in which a box of
 //!   another class stands where the candidate projects, counted over every
@@ -1248,11 +1253,28 @@ impl Mission {
             step.stuck_since = None;
             stamp
         };
+        // At the stopping distance from a confirmed fixed target, or nearer,
+        // though not on the goal: "stop 1 m before the chair" holds from
+        // anywhere at that range, and a goal placed on a cable, or beyond
+        // one the robot went round, cannot be reached — turning back to it
+        // only wedges the robot between the cable and the landmark
+        // (evaluation, lab: the robot stood 0.08 m farther from the chair
+        // than its goal, which lay 0.64 m behind it across a cable, and it
+        // asked the user the way).
+        let at_range = !goal.rotation_only
+            && self.find().is_some_and(|f| {
+                f.put_to_vote()
+                    && f.confirmed
+                    && f.fused.is_some_and(|t| {
+                        let t = Vector2::new(t.x, t.y);
+                        (pose.position() - t).norm() <= (goal.pose.position() - t).norm() + PROGRESS_M
+                    })
+            });
         if !goal.rotation_only
-            && plan.distance_to_goal <= goal.position_tolerance + SETTLE_M
+            && (at_range || plan.distance_to_goal <= goal.position_tolerance + SETTLE_M)
             && stamp - since >= p.settle_after_s
         {
-            // Close to the goal and no longer converging: settle where we are.
+            // Close to the goal (or at its range) and no longer converging: settle where we are.
             self.complete_step(goal);
             return self.hold();
         }

@@ -494,6 +494,57 @@ fn a_drive_that_stops_converging_near_its_goal_settles_there() {
     assert!(events(&mut m).iter().any(|e| matches!(e, Event::SubgoalReached { index: 0, .. })));
 }
 
+/// A confirmed chair (fused at (3.5, 0), its goal at (2, 0)) approached to
+/// `(x, y)`, where the local planner reports BLOCKED; the events after
+/// `seconds` of it.
+fn blocked_beside_the_goal(x: f64, y: f64, seconds: f64) -> (Mission, Vec<Event>) {
+    let p = ExecutorParams { confirm_frames: 3, confirm_window: 3, ..ExecutorParams::default() };
+    let mut m = mission(vec![find(56, "chair")]);
+    let goal = Pose2::new(2.0, 0.0, 0.0);
+    let to_goal = (x - goal.x).hypot(y - goal.y);
+    let mut sees = |r: &Request| -> Result<Reply, StageFailure> {
+        Ok(match r {
+            Request::StartStep { move_goal: None, .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Locate { .. } => located(goal),
+            Request::Drive { .. } => driven(DriveStatus::Blocked, 0.0, to_goal),
+            other => panic!("unexpected {other:?}"),
+        })
+    };
+    for k in 0..3 {
+        cycle(&mut m, &p, at(f64::from(k) * 0.2, 0.0, 0.0, 0.0), &mut sees);
+    }
+    let mut t = 1.0;
+    while t <= 1.0 + seconds {
+        cycle(&mut m, &p, at(t, x, y, 0.0), &mut sees);
+        t += 0.2;
+    }
+    let events = events(&mut m);
+    (m, events)
+}
+
+#[test]
+fn a_drive_blocked_at_the_landmarks_stopping_distance_but_off_its_goal_settles_there() {
+    let p = ExecutorParams::default();
+    // 1.49 m from the chair, which the goal puts 1.5 m away, but 1.72 m
+    // from the goal (beyond a cable, say): the instruction holds here.
+    let (m, events) = blocked_beside_the_goal(3.0, 1.4, p.settle_after_s + 0.5);
+    assert!(!m.is_awaiting());
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, Event::SubgoalReached { index: 0, error_m, .. } if (error_m - 1.72).abs() < 0.01)),
+        "{events:?}"
+    );
+    // Not before the settle time (counted from the first drive, at 0.4 s).
+    let (_, events) = blocked_beside_the_goal(3.0, 1.4, p.settle_after_s - 1.2);
+    assert!(!events.iter().any(|e| matches!(e, Event::SubgoalReached { .. })), "{events:?}");
+    // Farther from the chair than the goal, blocked: it asks the way.
+    let (m, events) = blocked_beside_the_goal(0.5, 1.0, p.stuck_timeout_s + 0.5);
+    assert!(m.is_awaiting());
+    assert!(!events.iter().any(|e| matches!(e, Event::SubgoalReached { .. })), "{events:?}");
+}
+
 #[test]
 fn a_blocked_drive_asks_after_the_stuck_timeout() {
     let p = ExecutorParams::default();

@@ -42,9 +42,11 @@
 //!   where only memory knows the floor, within `near_memory_m` less the
 //!   disc's radius, 0.35 m). Where neither does within the disc's diameter,
 //!   it turns on the sharpest forward arc toward the turn's side that keeps
-//!   the footprint clear (`RobotState::arc_turn`), and reports BLOCKED where
-//!   no arc does either, rather than grinding a corner along a parked car
-//!   during a look-around.
+//!   the footprint clear (`RobotState::arc_turn`); where no arc completes
+//!   the turn, it takes the move that frees the disc soonest and turns on
+//!   the spot from there (`RobotState::unwedge`); and it reports BLOCKED
+//!   where nothing frees the disc, rather than grinding a corner along a
+//!   parked car during a look-around.
 //! - Footprint guard: the paths keep a 0.45 m tube around the robot's centre
 //!   clear, but the Husky's corners reach 0.60 m, and a path that grazes an
 //!   obstacle diagonally ahead (or a goal beside a parked car) lets a corner
@@ -555,7 +557,8 @@ impl RobotState {
             (Some(_), _) => away,
             (None, Some(_)) => -away,
             (None, None) => {
-                return Some(self.arc_turn(turn, goal, dt, p).map_or(Sweep::Blocked, |(v, w)| Sweep::Arc(v, w)));
+                let arc = self.arc_turn(turn, goal, dt, p).or_else(|| self.unwedge(turn, &cells, back_max, dt, p));
+                return Some(arc.map_or(Sweep::Blocked, |(v, w)| Sweep::Arc(v, w)));
             }
         };
         Some(Sweep::Escape(f64::from(dir) * p.escape_speed))
@@ -700,6 +703,59 @@ impl RobotState {
             .find(|&m| self.clear_for(m, CREEP_HOLD_S, dt, p))
     }
 
+    /// Where no arc completes the turn (each either hits something or
+    /// circles the goal), the move that frees the sweep disc soonest, so
+    /// that the turn can then be made on the spot: forward or backward (no
+    /// farther than `back_max`, m) at `escape_speed` on one of
+    /// `CREEP_CURVATURES` either way, held clear until, within
+    /// `UNWEDGE_MAX_S`, the disc centred where the robot then stands holds
+    /// none of `cells` (x, y, the radius each must keep outside of, base
+    /// link); among equally soon, toward the turn's side and forward first.
+    /// Taking it frame after frame shortens it, so the robot does not
+    /// dither; a goal inside the arc's circle is no trap, since the arc is
+    /// left once the disc is free (evaluation, lab: a robot stopped before
+    /// a chair, with a cable along its left and the landmark to revisit on
+    /// its right, inside every forward arc's circle, reported BLOCKED, its
+    /// search legs ran into the chair, and it asked for a plant in view of
+    /// where it stood).
+    fn unwedge(
+        &self,
+        turn: f64,
+        cells: &[(f32, f32, f32)],
+        back_max: f32,
+        dt: f64,
+        p: &FollowParams,
+    ) -> Option<(f64, f64)> {
+        const STEP_S: f64 = 0.5;
+        let side = turn.signum();
+        let v = p.escape_speed;
+        let disc_free = |x: f64, y: f64| {
+            cells.iter().all(|&(cx, cy, r)| {
+                let (dx, dy) = (f64::from(cx) - x, f64::from(cy) - y);
+                dx * dx + dy * dy >= f64::from(r * r)
+            })
+        };
+        let moves = [v, -v].into_iter().flat_map(|v| {
+            [side, -side].into_iter().flat_map(move |s| CREEP_CURVATURES.iter().map(move |k| (v, s * k * v.abs())))
+        });
+        let steps = (UNWEDGE_MAX_S / STEP_S).round() as u32;
+        moves
+            .filter_map(|(v, w)| {
+                (1..=steps)
+                    .map(|i| f64::from(i) * STEP_S)
+                    .take_while(|&t| {
+                        (v > 0.0 || v.abs() * t <= f64::from(back_max)) && self.clear_for((v, w), t, dt, p)
+                    })
+                    .find(|&t| {
+                        let th = w * t;
+                        disc_free(v / w * th.sin(), v / w * (1.0 - th.cos()))
+                    })
+                    .map(|t| (t, (v, w)))
+            })
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .map(|(_, m)| m)
+    }
+
     /// Whether the footprint stays clear on the arc (v, ω) held for `hold`
     /// s, or for a frame and its stop if that is longer.
     fn clear_for(&self, (v, w): (f64, f64), hold: f64, dt: f64, p: &FollowParams) -> bool {
@@ -726,6 +782,10 @@ const CREEP_HOLD_S: f64 = 1.0;
 /// The longest straight move that may clear the sweep disc before a turn
 /// in place, m (its diameter): farther, the turn goes on an arc, if one is clear.
 const SWEEP_ESCAPE_MAX_M: f32 = 1.3;
+
+/// The longest a move that frees the sweep disc may take before the turn,
+/// s ([`RobotState::unwedge`]; 0.6 m at `escape_speed`).
+const UNWEDGE_MAX_S: f64 = 4.0;
 
 /// Side of the `odom` grid the memory keeps one cell per, m (the cloud's voxel).
 const MEMORY_VOXEL: f64 = 0.05;
@@ -1711,8 +1771,45 @@ mod tests {
         // arc), that arc never reaches the cable.
         assert!(!state.footprint_hits(v, w, 2.26 / w.abs(), &p));
         // Facing a goal inside every arc's circle (0.4 m to the right), the
-        // robot would circle it: BLOCKED.
-        assert_eq!(state.sweep(&input, &p, -1.57, Some(&Vector2::new(0.0, -0.4)), 0.2), Some(Sweep::Blocked));
+        // robot would circle it on any of them: it takes the move that frees
+        // the sweep disc soonest instead, held clear until the disc is free
+        // (its centre 0.65 m from the cable), and turns on the spot from there.
+        let Some(Sweep::Arc(v, w)) = state.sweep(&input, &p, -1.57, Some(&Vector2::new(0.0, -0.4)), 0.2) else {
+            panic!("the disc is freed on an arc")
+        };
+        let freed = (1..=8).map(|i| f64::from(i) * 0.5).find(|&t| {
+            let th = w * t;
+            0.6 - v / w * (1.0 - th.cos()) >= p.sweep_radius_m && (v / w * th.sin()).abs() < 2.0
+        });
+        let t = freed.expect("the move frees the disc within UNWEDGE_MAX_S");
+        assert!(t <= UNWEDGE_MAX_S);
+        assert!(!state.footprint_hits(v, w, t, &p), "held clear until then");
+        assert!(w < 0.0, "away from the cable: ({v}, {w})");
+    }
+
+    #[test]
+    fn a_robot_boxed_in_on_every_side_is_blocked_not_unwedged() {
+        let p = FollowParams::default();
+        // A cable along the left and the right, 0.6 m from the centre, and
+        // crates 0.15 m beyond the bumpers: no move frees the disc.
+        let mut cells: Vec<Cell> = (0..61)
+            .flat_map(|i| {
+                let x = -1.0 + 0.05 * i as f32;
+                [0.6_f32, -0.6].map(|y| Cell { x, y, blocking: 0, low: false, no_go: true, person: 0 })
+            })
+            .collect();
+        cells.extend((0..13).flat_map(|i| {
+            let y = -0.3 + 0.05 * i as f32;
+            [0.65_f32, -0.65].map(|x| Cell { x, y, blocking: 3, low: false, no_go: false, person: 0 })
+        }));
+        let state = RobotState {
+            measured_cells: cells.len(),
+            cloud: ObstacleCloud { cells, ..ObstacleCloud::default() },
+            ..RobotState::default()
+        };
+        let empty = ObstacleCloud::default();
+        let input = turn_in_place_to(1.57, &empty);
+        assert_eq!(state.sweep(&input, &p, 1.57, None, 0.2), Some(Sweep::Blocked));
     }
 
     #[test]
