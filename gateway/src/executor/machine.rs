@@ -1261,18 +1261,19 @@ impl Mission {
         // (evaluation, lab: the robot stood 0.08 m farther from the chair
         // than its goal, which lay 0.64 m behind it across a cable, and it
         // asked the user the way).
-        let at_range = !goal.rotation_only
-            && self.find().is_some_and(|f| {
+        let at_range = || {
+            self.find().is_some_and(|f| {
                 f.put_to_vote()
                     && f.confirmed
                     && f.fused.is_some_and(|t| {
                         let t = Vector2::new(t.x, t.y);
                         (pose.position() - t).norm() <= (goal.pose.position() - t).norm() + PROGRESS_M
                     })
-            });
+            })
+        };
         if !goal.rotation_only
-            && (at_range || plan.distance_to_goal <= goal.position_tolerance + SETTLE_M)
             && stamp - since >= p.settle_after_s
+            && (plan.distance_to_goal <= goal.position_tolerance + SETTLE_M || at_range())
         {
             // Close to the goal (or at its range) and no longer converging: settle where we are.
             self.complete_step(goal);

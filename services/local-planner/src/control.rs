@@ -581,8 +581,7 @@ impl RobotState {
         let poses: Vec<(f32, f32, f32, f32)> = (1..=SAMPLES)
             .map(|k| {
                 let t = horizon * k as f64 / SAMPLES as f64;
-                let th = w * t;
-                let (x, y) = if w.abs() < 1e-6 { (v * t, 0.0) } else { (v / w * th.sin(), v / w * (1.0 - th.cos())) };
+                let (x, y, th) = arc_pose(v, w, t);
                 (x as f32, y as f32, th.cos() as f32, th.sin() as f32)
             })
             .collect();
@@ -747,8 +746,8 @@ impl RobotState {
                         (v > 0.0 || v.abs() * t <= f64::from(back_max)) && self.clear_for((v, w), t, dt, p)
                     })
                     .find(|&t| {
-                        let th = w * t;
-                        disc_free(v / w * th.sin(), v / w * (1.0 - th.cos()))
+                        let (x, y, _) = arc_pose(v, w, t);
+                        disc_free(x, y)
                     })
                     .map(|t| (t, (v, w)))
             })
@@ -761,6 +760,13 @@ impl RobotState {
     fn clear_for(&self, (v, w): (f64, f64), hold: f64, dt: f64, p: &FollowParams) -> bool {
         !self.footprint_hits(v, w, hold.max(stop_horizon(v, w, dt, p)), p)
     }
+}
+
+/// Where the arc (v, ω) held for `t` s takes the robot, base link at its
+/// start: x, y and heading.
+fn arc_pose(v: f64, w: f64, t: f64) -> (f64, f64, f64) {
+    let th = w * t;
+    if w.abs() < 1e-6 { (v * t, 0.0, th) } else { (v / w * th.sin(), v / w * (1.0 - th.cos()), th) }
 }
 
 /// How long the guard follows an arc: one frame, then as long as stopping
@@ -951,8 +957,7 @@ impl RobotState {
         let mut still = vec![f64::INFINITY; walkers];
         for k in 0..=SAMPLES {
             let t = pp.horizon_s * k as f64 / SAMPLES as f64;
-            let th = w * t;
-            let (x, y) = if w.abs() < 1e-6 { (v * t, 0.0) } else { (v / w * th.sin(), v / w * (1.0 - th.cos())) };
+            let (x, y, th) = arc_pose(v, w, t);
             for (i, (q, reach)) in self.people.walkers_ahead(input.stamp, t, &input.pose, pp).iter().enumerate() {
                 moving[i] = moving[i].min(gap(q, x, y, th) - reach);
                 still[i] = still[i].min(gap(q, 0.0, 0.0, 0.0) - reach);
