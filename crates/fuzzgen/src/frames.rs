@@ -353,5 +353,6 @@ pub fn goal(rng: &mut Rng) -> pb::Goal {
         position_tolerance: num(rng, -0.1, 1.0),
         yaw_tolerance: num(rng, -0.1, 0.5),
         rotation_only: rng.random_bool(0.3),
+        landmark: rng.random_bool(0.3).then(|| Point3 { x: num(rng, -20.0, 20.0), y: num(rng, -20.0, 20.0), z: 0.0 }),
     }
 }

@@ -4,7 +4,7 @@
 //! [`ImageError`](crate::rgb::ImageError)) that names the field and says what
 //! was expected; every service maps it to `INVALID_ARGUMENT`.
 
-use nalgebra::Vector3;
+use nalgebra::{Vector2, Vector3};
 use vlnav_proto::v1 as pb;
 
 use crate::camera::{Camera, Intrinsics, Mount};
@@ -81,11 +81,22 @@ pub fn goal_from_proto(g: Option<&pb::Goal>, field: &str) -> Result<GoalSpec, In
             format!("must be a positive distance in metres, got {}", g.position_tolerance),
         ));
     }
+    let landmark = match g.landmark.as_ref() {
+        None => None,
+        Some(l) if l.x.is_finite() && l.y.is_finite() => Some(Vector2::new(l.x, l.y)),
+        Some(l) => {
+            return Err(InvalidField::new(
+                format!("{field}.landmark"),
+                format!("must be a finite odom position in metres, got ({}, {})", l.x, l.y),
+            ));
+        }
+    };
     Ok(GoalSpec {
         pose,
         position_tolerance: if g.position_tolerance.is_finite() { g.position_tolerance.max(0.0) } else { 0.0 },
         yaw_tolerance: if g.yaw_tolerance.is_finite() { g.yaw_tolerance.max(0.0) } else { 0.0 },
         rotation_only: g.rotation_only,
+        landmark,
     })
 }
 
@@ -95,6 +106,7 @@ pub fn goal_to_proto(g: &GoalSpec) -> pb::Goal {
         position_tolerance: g.position_tolerance,
         yaw_tolerance: g.yaw_tolerance,
         rotation_only: g.rotation_only,
+        landmark: g.landmark.map(|l| pb::Point3 { x: l.x, y: l.y, z: 0.0 }),
     }
 }
 
@@ -341,8 +353,12 @@ mod tests {
         let bad = pb::Pose2D { theta: f64::NAN, ..pose_to_proto(&p) };
         assert_eq!(field_of(pose_from_proto(Some(&bad), "anchor")), "anchor.theta");
         assert_eq!(field_of(pose_from_proto(None, "anchor")), "anchor");
-        let g = GoalSpec { pose: p, position_tolerance: 0.3, yaw_tolerance: 0.2, rotation_only: false };
+        let g = GoalSpec { pose: p, position_tolerance: 0.3, yaw_tolerance: 0.2, rotation_only: false, landmark: None };
         assert_eq!(goal_from_proto(Some(&goal_to_proto(&g)), "goal").unwrap(), g);
+        let at = GoalSpec { landmark: Some(Vector2::new(2.0, -1.0)), ..g };
+        assert_eq!(goal_from_proto(Some(&goal_to_proto(&at)), "goal").unwrap(), at);
+        let lost = pb::Goal { landmark: Some(pb::Point3 { x: f64::INFINITY, y: 0.0, z: 0.0 }), ..goal_to_proto(&g) };
+        assert_eq!(field_of(goal_from_proto(Some(&lost), "goal")), "goal.landmark");
         let no_tol = pb::Goal { position_tolerance: 0.0, ..goal_to_proto(&g) };
         assert_eq!(field_of(goal_from_proto(Some(&no_tol), "goal")), "goal.position_tolerance");
         let turn = pb::Goal { rotation_only: true, yaw_tolerance: f64::NAN, ..goal_to_proto(&g) };

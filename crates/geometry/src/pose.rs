@@ -90,6 +90,9 @@ pub struct GoalSpec {
     /// … and, for a pure rotation, this heading error, rad.
     pub yaw_tolerance: f64,
     pub rotation_only: bool,
+    /// For a goal at a fixed landmark's stopping distance: the landmark
+    /// (`odom`, on the floor). The distance holds from any bearing.
+    pub landmark: Option<Vector2<f64>>,
 }
 
 /// A planar body velocity: forward m/s, yaw rate rad/s (counter-clockwise).

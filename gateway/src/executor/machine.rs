@@ -906,6 +906,7 @@ impl Mission {
                     position_tolerance: 0.5_f64.max(step.d_s),
                     yaw_tolerance: std::f64::consts::PI,
                     rotation_only: false,
+                    landmark: None,
                 },
             },
             Action::Find | Action::Follow | Action::Unspecified => StepRun::Find(Box::new(FindRun {

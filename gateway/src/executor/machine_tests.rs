@@ -63,6 +63,7 @@ fn goal_of(q: &MoveQuery) -> Goal {
         position_tolerance: 0.25,
         yaw_tolerance: 0.2,
         rotation_only,
+        landmark: None,
     }
 }
 
@@ -98,7 +99,13 @@ fn every_other_without_depth(k: u32) -> Reply {
 fn located(goal: Pose2) -> Reply {
     Reply::Located(Estimate {
         status: EstimateStatus::Ok,
-        goal: Some(Goal { pose: goal, position_tolerance: 0.25, yaw_tolerance: 0.2, rotation_only: false }),
+        goal: Some(Goal {
+            pose: goal,
+            position_tolerance: 0.25,
+            yaw_tolerance: 0.2,
+            rotation_only: false,
+            landmark: None,
+        }),
         fused_target: Some(Vector3::new(goal.x + 1.5, goal.y, 0.5)),
         range_m: 3.0,
     })
@@ -748,6 +755,7 @@ fn tally(
                         position_tolerance: 0.25,
                         yaw_tolerance: 0.2,
                         rotation_only: false,
+                        landmark: None,
                     }),
                     fused_target: Some(t),
                     range_m: t.x,

@@ -77,8 +77,13 @@
 //!   sideways, across its heading, by the smallest multiple of 0.05 m up to
 //!   `goal_shift_max_m` (0.4 m) that clears it. Across the heading, the
 //!   distance to what the robot faces changes by only δ²/2d (3 cm for 0.3 m
-//!   at 1.5 m). The shift is kept while it stays clear, so it does not
-//!   jitter from frame to frame.
+//!   at 1.5 m). Where no shift clears it and the goal lies at a fixed
+//!   landmark's stopping distance (`GoalSpec::landmark`), it is moved round
+//!   the landmark, heading and all, by the smallest multiple of 5° up to
+//!   `goal_orbit_max_rad` (90°) that clears its footprint and the sweep
+//!   disc, so the robot can turn on the spot there (docs/design.md §4). The
+//!   move is kept while it stays clear, so it does not jitter from frame to
+//!   frame.
 //! - Obstacle memory: the camera sees ±43°, so an obstacle leaves the view as
 //!   soon as the robot turns away from it, and a plan made without it would
 //!   turn straight back. Cells of recent frames, one per 5 cm `odom` voxel
@@ -146,7 +151,7 @@
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
 
-use nalgebra::Vector2;
+use nalgebra::{Rotation2, Vector2};
 use vlnav_geometry::{GoalSpec, Pose2, wrap_angle};
 
 use crate::cloud::{Cell, CloudParams, ObstacleCloud, SeenRange};
@@ -225,6 +230,9 @@ pub struct FollowParams {
     pub guard_margin_m: f64,
     /// Largest sideways move of a goal whose footprint holds an obstacle, m.
     pub goal_shift_max_m: f64,
+    /// Largest turn of a landmark's goal round the landmark where no
+    /// sideways move clears its footprint, rad.
+    pub goal_orbit_max_rad: f64,
 }
 
 impl FollowParams {
@@ -275,6 +283,7 @@ impl Default for FollowParams {
             escape_speed: 0.15,
             guard_margin_m: 0.05,
             goal_shift_max_m: 0.4,
+            goal_orbit_max_rad: std::f64::consts::FRAC_PI_2,
         }
     }
 }
@@ -446,12 +455,38 @@ pub struct RobotState {
     /// The last second of frames' depth coverage, oldest first.
     recent: VecDeque<RecentView>,
     last_pose: Option<Pose2>,
-    /// The goal (odom position) a sideways shift was chosen for, and the shift, m.
-    goal_shift: Option<(Vector2<f64>, f64)>,
+    /// The goal (odom position) a move off its blocked footprint was chosen
+    /// for, and the move.
+    goal_shift: Option<(Vector2<f64>, GoalMove)>,
     /// The people seen lately, `odom`.
     people: Tracker,
     scratch: Scratch,
 }
+
+/// How a goal whose footprint holds an obstacle is moved off it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum GoalMove {
+    /// Sideways, across the goal's heading (left positive), m.
+    Across(f64),
+    /// Round the goal's landmark (counter-clockwise positive), its heading
+    /// turned with it, rad.
+    Round(f64),
+}
+
+impl GoalMove {
+    /// The moved goal's position and heading (`odom`).
+    fn apply(self, goal: &GoalSpec) -> (Vector2<f64>, f64) {
+        let g = goal.pose;
+        match (self, goal.landmark) {
+            (GoalMove::Across(d), _) => (g.position() + Vector2::new(-g.theta.sin(), g.theta.cos()) * d, g.theta),
+            (GoalMove::Round(a), Some(l)) => (l + Rotation2::new(a) * (g.position() - l), g.theta + a),
+            (GoalMove::Round(_), None) => (g.position(), g.theta),
+        }
+    }
+}
+
+/// The step of a landmark goal's turn round its landmark, rad (5°).
+const ORBIT_STEP_RAD: f64 = 5.0 * std::f64::consts::PI / 180.0;
 
 /// What a turn in place must do first when its sweep disc is not free.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -614,25 +649,52 @@ impl RobotState {
         })
     }
 
-    /// The goal's position (odom), moved sideways across its heading by the
-    /// smallest shift that clears its footprint (docs above); unmoved when
-    /// it is clear or no shift up to `goal_shift_max_m` clears it.
+    /// Whether no cell the body must keep out of lies within `radius` of
+    /// `centre` (`base_link`).
+    fn disc_clear_at(&self, centre: &Vector2<f64>, radius: f64) -> bool {
+        !self
+            .cloud
+            .cells
+            .iter()
+            .filter(|cell| cell.keeps_out())
+            .any(|cell| (f64::from(cell.x) - centre.x).hypot(f64::from(cell.y) - centre.y) <= radius)
+    }
+
+    /// The goal's position (odom), moved off a footprint that holds an
+    /// obstacle (docs above): sideways across its heading by the smallest
+    /// shift up to `goal_shift_max_m` that clears it, else — for a goal at a
+    /// landmark's stopping distance — round the landmark by the smallest
+    /// turn up to `goal_orbit_max_rad` that clears it; unmoved when it is
+    /// clear or nothing clears it.
     fn clear_goal(&mut self, input: &StepInput<'_>, p: &FollowParams) -> Vector2<f64> {
         let g = input.goal.pose;
-        let left = Vector2::new(-g.theta.sin(), g.theta.cos());
-        let heading = wrap_angle(g.theta - input.pose.theta);
-        let clear = |s: &Self, d: f64| {
-            s.footprint_clear_at(&input.pose.inverse_transform(&(g.position() + left * d)), heading, p)
+        // A goal moved round its landmark must also leave the robot room to
+        // turn on the spot there, as the step after a landmark mostly does:
+        // its sweep disc free.
+        let clear = |s: &Self, m: GoalMove| {
+            let (at, heading) = m.apply(&input.goal);
+            let centre = input.pose.inverse_transform(&at);
+            s.footprint_clear_at(&centre, wrap_angle(heading - input.pose.theta), p)
+                && (matches!(m, GoalMove::Across(_)) || s.disc_clear_at(&centre, p.sweep_radius_m))
         };
-        let kept = self.goal_shift.filter(|(at, _)| (at - g.position()).norm() < 0.5).map(|(_, d)| d);
-        let steps = (p.goal_shift_max_m / 0.05).round() as i32;
-        let shift = kept
-            .into_iter()
-            .chain((0..=steps).flat_map(|k| [f64::from(k) * 0.05, -f64::from(k) * 0.05]))
-            .find(|&d| clear(self, d))
-            .unwrap_or(0.0);
-        self.goal_shift = Some((g.position(), shift));
-        g.position() + left * shift
+        let kept = self.goal_shift.filter(|(at, _)| (at - g.position()).norm() < 0.5).map(|(_, m)| m);
+        let shifts = (p.goal_shift_max_m / 0.05).round() as i32;
+        let across = (0..=shifts).flat_map(|k| [f64::from(k) * 0.05, -f64::from(k) * 0.05]).map(GoalMove::Across);
+        // Round the landmark both ways, each turn's nearer side first.
+        let turns =
+            if input.goal.landmark.is_some() { (p.goal_orbit_max_rad / ORBIT_STEP_RAD).round() as i32 } else { 0 };
+        let here = input.pose.position();
+        let round = (1..=turns).flat_map(|k| {
+            let mut both =
+                [GoalMove::Round(f64::from(k) * ORBIT_STEP_RAD), GoalMove::Round(-f64::from(k) * ORBIT_STEP_RAD)];
+            let away = |m: &GoalMove| (m.apply(&input.goal).0 - here).norm();
+            both.sort_by(|a, b| away(a).total_cmp(&away(b)));
+            both
+        });
+        let chosen =
+            kept.into_iter().chain(across).chain(round).find(|&m| clear(self, m)).unwrap_or(GoalMove::Across(0.0));
+        self.goal_shift = Some((g.position(), chosen));
+        chosen.apply(&input.goal).0
     }
 
     /// The command itself if its arc keeps the footprint clear (and `ok`
@@ -1219,6 +1281,7 @@ mod tests {
                 position_tolerance: 0.3,
                 yaw_tolerance: 0.2,
                 rotation_only: false,
+                landmark: None,
             },
             cloud,
             max_speed: 0.0,
@@ -1388,6 +1451,7 @@ mod tests {
             position_tolerance: 0.3,
             yaw_tolerance: 0.2,
             rotation_only: false,
+            landmark: None,
         };
         for drive in [false, true] {
             let mut state = RobotState::default();
@@ -1420,6 +1484,7 @@ mod tests {
             position_tolerance: 0.3,
             yaw_tolerance: 0.2,
             rotation_only: false,
+            landmark: None,
         };
         let mut state = RobotState::default();
         let mut seen_moving = 0;
@@ -1607,6 +1672,7 @@ mod tests {
                 position_tolerance: 0.3,
                 yaw_tolerance: 0.2,
                 rotation_only: true,
+                landmark: None,
             },
             cloud: empty,
             max_speed: 0.0,
@@ -1832,5 +1898,61 @@ mod tests {
             assert!(without > 0.08, "target {target}: the unbraked turn overshoots ({without:.3} rad)");
             assert!(with < 0.4 * without, "target {target}: braked {with:.3} rad vs unbraked {without:.3} rad");
         }
+    }
+
+    #[test]
+    fn a_landmark_goal_on_a_cable_is_moved_round_the_landmark_where_no_sideways_shift_clears_it() {
+        let p = FollowParams::default();
+        // A chair 2.25 m ahead, its goal 1.25 m before it, and a floor cable
+        // across the approach 1.5 m ahead, under the goal's front, from
+        // 0.6 m right to 1.5 m left: along it no sideways shift clears the
+        // goal (evaluation, lab: robots that stopped short of the cable
+        // stood where the chair hid the plant of the next step).
+        let cells: Vec<Cell> = (0..43)
+            .map(|i| Cell { x: 1.5, y: -0.6 + 0.05 * i as f32, blocking: 0, low: false, no_go: true, person: 0 })
+            .collect();
+        let cloud = ObstacleCloud { cells: cells.clone(), ..ObstacleCloud::default() };
+        let chair = Vector2::new(2.25, 0.0);
+        let goal = GoalSpec {
+            pose: Pose2::new(1.0, 0.0, 0.0),
+            position_tolerance: 0.25,
+            yaw_tolerance: 0.2,
+            rotation_only: false,
+            landmark: Some(chair),
+        };
+        let input = StepInput {
+            stamp: 0.0,
+            pose: Pose2::new(0.0, 0.0, 0.0),
+            goal,
+            cloud: &cloud,
+            max_speed: 0.0,
+            view: view_ahead(),
+        };
+        let mut state = RobotState { cloud: cloud.clone(), ..RobotState::default() };
+        for k in -8..=8 {
+            let (at, heading) = GoalMove::Across(0.05 * f64::from(k)).apply(&goal);
+            assert!(!state.footprint_clear_at(&at, heading, &p), "a shift of {:.2} m clears it", 0.05 * f64::from(k));
+        }
+        // Round the chair, past the cable's end (the right), at the same
+        // distance from the chair, with room to turn on the spot there.
+        let at = state.clear_goal(&input, &p);
+        assert!(((at - chair).norm() - 1.25).abs() < 1e-9, "{at:?}");
+        assert!(at.y < -0.6, "{at:?}");
+        let Some((_, GoalMove::Round(turn))) = state.goal_shift else { panic!("{:?}", state.goal_shift) };
+        assert!(turn > 0.0 && turn <= p.goal_orbit_max_rad, "{turn}");
+        assert!(state.footprint_clear_at(&at, turn, &p));
+        assert!(state.disc_clear_at(&at, p.sweep_radius_m));
+        // The smallest such turn: one step less is blocked.
+        let (before, heading) = GoalMove::Round(turn - ORBIT_STEP_RAD).apply(&goal);
+        assert!(
+            !state.footprint_clear_at(&before, heading, &p) || !state.disc_clear_at(&before, p.sweep_radius_m),
+            "{turn}"
+        );
+        // Kept on the next frame, while it stays clear.
+        assert_eq!(state.clear_goal(&input, &p), at);
+        // A goal at no landmark (a MOVE's end) is left where it is.
+        let mut plain = RobotState { cloud: cloud.clone(), ..RobotState::default() };
+        let no_landmark = StepInput { goal: GoalSpec { landmark: None, ..goal }, ..input.clone() };
+        assert_eq!(plain.clear_goal(&no_landmark, &p), goal.pose.position());
     }
 }

@@ -90,6 +90,7 @@ fn goal(x: f64, y: f64) -> pb::Goal {
         position_tolerance: 0.3,
         yaw_tolerance: 0.2,
         rotation_only: false,
+        landmark: None,
     }
 }
 

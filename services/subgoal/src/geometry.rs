@@ -41,6 +41,7 @@ pub fn move_goal(anchor: Pose2, f_dist: f64, yaw: f64, d_s: f64, p: &MoveParams)
         position_tolerance: p.min_position_tolerance.max(d_s),
         yaw_tolerance: p.yaw_tolerance,
         rotation_only,
+        landmark: None,
     }
 }
 

@@ -224,6 +224,9 @@ impl Tracks {
                         position_tolerance: self.params.goal_tolerance_m,
                         yaw_tolerance: self.params.goal_yaw_tolerance,
                         rotation_only: false,
+                        // A person to follow walks on: only a fixed landmark's
+                        // stopping distance holds from any bearing.
+                        landmark: matches!(track.filter, Filter::Fixed(_)).then(|| target.xy()),
                     }),
                     observed,
                     fused: Some(target),
@@ -355,6 +358,19 @@ mod tests {
         let g = t.observe("p", &m).goal.unwrap().pose;
         let bearing = (-1.0f64).atan2(3.0);
         assert!((g.theta - bearing).abs() < 0.05, "{g:?}");
+    }
+
+    #[test]
+    fn a_fixed_targets_goal_names_its_landmark_and_a_persons_does_not() {
+        // The stopping distance from a fixed landmark holds from any bearing,
+        // so the local planner may move a blocked goal round it; a person
+        // walks on, and is faced from where the robot is.
+        let mut t = Tracks::new(TrackParams::default());
+        let fixed = t.observe("f", &obs(Ok(Vector3::new(6.0, 1.0, 0.5)), 0.0)).goal.unwrap();
+        assert_eq!(fixed.landmark, Some(Vector2::new(6.0, 1.0)));
+        let mut m = obs(Ok(Vector3::new(6.0, 0.0, 0.5)), 0.0);
+        m.moving = true;
+        assert_eq!(t.observe("p", &m).goal.unwrap().landmark, None);
     }
 
     #[test]
