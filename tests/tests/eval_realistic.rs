@@ -54,10 +54,14 @@ use vlnav_eval::metrics::Mode;
 /// 3 cm nearer since the segmenter places a marking's points where the
 /// pixel's ray meets the floor and leaves out the foot of anything
 /// standing (services/segmenter/README.md): the markings' cells moved.
+/// Garage trial 1 stops 3 cm farther since a look-around that starts more
+/// than a scan turn off the route's course turns onto the course first
+/// (docs/perception.md): it sees the motorcycle from another heading, and
+/// the views its place is fused from moved.
 const PINNED: &str = "crossing 0 succeeded true true +0.03 0 0\n\
 crossing 1 succeeded true true +0.15 0 0\n\
 garage 0 succeeded true true +0.02 0 0\n\
-garage 1 succeeded true true +0.04 0 0\n\
+garage 1 succeeded true true +0.07 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\
 precise 1 succeeded true true +0.03 0 0\n\
 symmetric 0 succeeded true true +0.07 0 0\n\

@@ -1342,6 +1342,7 @@ impl Mission {
     fn explore(&mut self, p: &ExecutorParams) -> Next {
         let (pose, stamp) = (self.frame.pose, self.frame.stamp);
         let index = self.index as u32;
+        let course = self.course;
         let Some(f) = self.find_mut() else { return self.hold() };
         let state = std::mem::replace(&mut f.explore, Explore::Idle);
         match state {
@@ -1367,10 +1368,18 @@ impl Mission {
             }
             Explore::Idle => {
                 // Look first where the target was last seen (a person who
-                // walked out of view went that way), then on round from there.
-                let origin = match f.predicted(stamp) {
-                    Some(t) => Pose2::new(pose.x, pose.y, wrap(bearing(pose, &t) - p.scan_turn_rad)),
-                    None => pose,
+                // walked out of view went that way); else, where the robot
+                // faces more than a scan turn off the route's course, along
+                // the course (a MOVE that went round a cable's end ended
+                // facing 70° off it, and the look-around, turning on from
+                // there, came to the chair off the route before the one on
+                // it: evaluation, lab); then on round from there.
+                let origin = match (f.predicted(stamp), course) {
+                    (Some(t), _) => Pose2::new(pose.x, pose.y, wrap(bearing(pose, &t) - p.scan_turn_rad)),
+                    (None, Some(c)) if wrap(c - pose.theta).abs() > p.scan_turn_rad => {
+                        Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad))
+                    }
+                    (None, _) => pose,
                 };
                 let what = ExploreGoalFor::Scan { leg: 0, origin, announce: true };
                 self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0)))

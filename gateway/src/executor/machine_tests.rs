@@ -458,6 +458,46 @@ fn an_unseen_target_is_searched_for_boundedly_then_asked_about() {
     assert!(asked.is_empty() && !cmd.active && cmd.twist == Twist::ZERO);
 }
 
+/// The first scan turn of a FIND for an unseen chair after a 3 m MOVE along
+/// +x that the robot ended facing `arrival` (rad): the look-around's origin
+/// and the first turn's heading.
+fn first_scan_after_a_move_arriving_at(arrival: f64) -> (Pose2, f64) {
+    let p = ExecutorParams { unseen_frames: 2, look_frames: 1, ..Default::default() };
+    let mut m = mission(vec![mv(3.0, 0.0), find(56, "chair")]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 3.0)));
+    cycle(&mut m, &p, at(5.0, 3.0, 0.0, arrival), blind(|_| driven(DriveStatus::Reached, 0.0, 0.02)));
+    for k in 0..50 {
+        let (_, asked) = cycle(
+            &mut m,
+            &p,
+            at(5.2 + 0.2 * f64::from(k), 3.0, 0.0, arrival),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        if let Some(q) = asked.iter().find_map(|r| match r {
+            Request::MoveGoal(q) => Some(*q),
+            _ => None,
+        }) {
+            return (q.anchor, wrap(q.anchor.theta + q.yaw));
+        }
+    }
+    panic!("no scan turn");
+}
+
+#[test]
+fn a_look_around_after_a_move_that_ended_facing_off_its_course_looks_along_the_course_first() {
+    // Round a cable's end the MOVE ended facing 73° left of its course:
+    // the first look after the view it arrived with is along the course,
+    // where the instruction's next landmark is (evaluation, lab).
+    let (origin, first) = first_scan_after_a_move_arriving_at(1.27);
+    assert!((origin.x, origin.y) == (3.0, 0.0), "{origin:?}");
+    assert!(first.abs() < 1e-9, "first turn to {first} rad");
+    // Within a scan turn of the course, the view it arrived with covered
+    // it: the look-around turns on from where the robot faces.
+    let (origin, first) = first_scan_after_a_move_arriving_at(0.3);
+    assert!((origin.theta - 0.3).abs() < 1e-9, "{origin:?}");
+    assert!((first - (0.3 + FRAC_PI_6)).abs() < 1e-9, "first turn to {first} rad");
+}
+
 #[test]
 fn a_scan_turn_with_no_room_to_turn_looks_at_once_and_the_search_ends_in_a_question() {
     // Wedged: every drive answers BLOCKED. Each scan turn looks from where
