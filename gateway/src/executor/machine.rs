@@ -1371,7 +1371,7 @@ impl Mission {
                 // walked out of view went that way); else, where the robot
                 // faces more than a scan turn off the route's course, along
                 // the course (a MOVE that went round a cable's end ended
-                // facing 70° off it, and the look-around, turning on from
+                // facing 73° off it, and the look-around, turning on from
                 // there, came to the chair off the route before the one on
                 // it: evaluation, lab); then on round from there.
                 let origin = match (f.predicted(stamp), course) {

@@ -79,6 +79,11 @@ fn goal_at(x: f64, y: f64, tolerance: f64) -> GoalSpec {
     }
 }
 
+/// A turn on the spot at the origin to `theta` (odom), within 0.2 rad.
+fn turn_to(theta: f64) -> GoalSpec {
+    GoalSpec { pose: Pose2::new(0.0, 0.0, theta), rotation_only: true, ..goal_at(0.0, 0.0, 0.5) }
+}
+
 struct Run {
     poses: Vec<Pose2>,
     outputs: Vec<StepOutput>,
@@ -261,13 +266,7 @@ fn a_goal_one_metre_before_a_landmark_is_approached_straight_on() {
 #[test]
 fn rotation_only_goal_turns_until_within_yaw_tolerance() {
     let world = World::default();
-    let goal = GoalSpec {
-        pose: Pose2::new(0.0, 0.0, -1.2),
-        position_tolerance: 0.5,
-        yaw_tolerance: 0.2,
-        rotation_only: true,
-        landmark: None,
-    };
+    let goal = turn_to(-1.2);
     let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal, 50);
     assert!(run.outputs[0].angular < 0.0);
     assert_eq!(run.outputs[0].status, StepStatus::Rotating);
@@ -401,13 +400,7 @@ fn a_turn_in_place_beside_a_parked_car_first_backs_away_until_its_corners_clear_
     // into it.
     let mut world = World::default();
     world.add_box(0.55, 0.2, 2.5, 2.2, 1.5);
-    let goal = GoalSpec {
-        pose: Pose2::new(0.0, 0.0, 1.5),
-        position_tolerance: 0.5,
-        yaw_tolerance: 0.2,
-        rotation_only: true,
-        landmark: None,
-    };
+    let goal = turn_to(1.5);
     let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal, 80);
     let first = &run.outputs[0];
     assert!(first.linear < 0.0 && first.angular == 0.0, "backs away first: {first:?}");
@@ -433,13 +426,7 @@ fn a_turn_in_place_with_no_way_out_is_blocked_not_ground_through() {
         }
     }
     let cloud = builder.from_points(&points, &[]);
-    let goal = GoalSpec {
-        pose: Pose2::new(0.0, 0.0, 1.5),
-        position_tolerance: 0.5,
-        yaw_tolerance: 0.2,
-        rotation_only: true,
-        landmark: None,
-    };
+    let goal = turn_to(1.5);
     let mut state = RobotState::default();
     let out = state.step(
         planner(),
