@@ -24,7 +24,7 @@ use vlnav_eval::metrics::Mode;
 /// Crossing trial 1 stops 1 cm farther and symmetric trial 0 1 cm nearer
 /// since the footprint guard and the goal shift keep the body out of no-go
 /// cells too, and a no-go marking on the floor is remembered until the
-/// image shows that floor (services/local-planner/src/control.rs).
+/// image shows that floor (services/local-planner/src/control/memory.rs).
 /// Garage trial 1 stops 1 cm farther since a turn in place counts
 /// remembered cells 5 cm farther out (`memory_drift_m`, same file).
 /// Crossing trial 0 stops 2 cm nearer since the robot waits for walking
@@ -39,7 +39,7 @@ use vlnav_eval::metrics::Mode;
 /// MOVE) 0.10 m farther, since the robot slows to 0.6 m/s near walking
 /// people (services/local-planner/src/people.rs, `near_walker_mps`) and
 /// the footprint guard sweeps a turn over its braking time
-/// (services/local-planner/src/control.rs): it weaves round the people at
+/// (services/local-planner/src/control/guard.rs): it weaves round the people at
 /// other places, its odometry ends the MOVE 0.09 m off the commanded
 /// 12 m, and the wheels' slip on the turns puts the true end 0.15 m from
 /// it.

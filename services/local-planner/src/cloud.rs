@@ -17,7 +17,7 @@
 //! ([`SeenRange`]): the farthest valid point below `max_height`, floor
 //! included. Where the D455 returns no depth (stereo occlusion bands left of
 //! near edges, textureless or distant surfaces) the frame saw nothing, and
-//! the obstacle memory (`control.rs`) keeps what it remembers there.
+//! the obstacle memory (`control/memory.rs`) keeps what it remembers there.
 //!
 //! People the detector boxed in the frame ([`PixelBox`]) mark the cells their
 //! pixels fall in: a pixel inside a person's box belongs to the person when
@@ -25,7 +25,7 @@
 //! quartile of the box's central part, where the torso is; the background
 //! around a person is farther). Each person's blocking points also give
 //! where they stand ([`ObstacleCloud::people`]), for the tracker in
-//! `control.rs`.
+//! `control/memory.rs`.
 
 use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::camera::Camera;

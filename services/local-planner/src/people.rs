@@ -2,7 +2,7 @@
 //!
 //! The depth image alone cannot tell a person from a post: a cell is known to
 //! move only where a frame a moment earlier saw free space behind it
-//! (`control.rs`), and a person first seen while the camera turns, or one
+//! (`control/memory.rs`), and a person first seen while the camera turns, or one
 //! who walks beside the robot at the edge of the view, is never caught that
 //! way. The detector's person boxes say what is a person; where the person
 //! stands comes from the depth behind the box (`cloud.rs`), and this tracker
