@@ -23,7 +23,7 @@ fn the_same_seed_writes_the_same_bytes() {
         let a = generate(f, 17).unwrap();
         let b = generate(f, 17).unwrap();
         assert_eq!(a.toml, b.toml, "{f}: world");
-        assert_eq!(suite_toml(&[a.clone()], "x"), suite_toml(&[b], "x"), "{f}: suite");
+        assert_eq!(suite_toml(std::slice::from_ref(&a), "x"), suite_toml(&[b], "x"), "{f}: suite");
         let c = generate(f, 18).unwrap();
         assert_ne!(a.toml, c.toml, "{f}: another seed, another world");
     }
@@ -196,4 +196,11 @@ fn dropped_instructions_are_listed() {
     let (dir, _path, dropped) = generated();
     let csv = std::fs::read_to_string(dir.path().join("dropped.csv")).unwrap();
     assert_eq!(csv.lines().count() - 1, dropped, "dropped.csv lists every dropped instruction");
+}
+
+#[test]
+fn the_shipped_suite_has_no_families_so_its_report_is_unchanged() {
+    // The per-family section is added only for suites whose scenarios carry a family.
+    let shipped = Suite::load(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenarios/suite.toml")).unwrap();
+    assert!(shipped.scenarios.iter().all(|s| s.family.is_none()));
 }

@@ -575,7 +575,7 @@ fn hall(name: &str, rng: &mut Rng) -> Option<Layout> {
     let people = people_count(sc.rng, 4).max(1);
     let class = target_class(sc.rng, &[13, 58, 56, 0, 28, 24], people > 0);
     let ds = d_s(sc.rng);
-    let a = sc.rng.stepped(3.0, (lx - 8.0).max(3.0).min(10.0), 1.0);
+    let a = sc.rng.stepped(3.0, (lx - 8.0).clamp(3.0, 10.0), 1.0);
     let turn = *sc.rng.pick(&[0, 30, 45, 60, 90, -30, -45, -60, -90]);
     let b = if turn == 0 { 0.0 } else { sc.rng.stepped(0.0, 4.0, 1.0) };
     let legs = if turn == 0 {
@@ -661,7 +661,7 @@ fn office(name: &str, rng: &mut Rng) -> Option<Layout> {
     } else {
         let a = sc.rng.stepped(3.0, (lx - 7.0).max(3.0), 1.0);
         let legs = vec![Leg { turn_deg: 0, move_m: a }];
-        let dist = sc.rng.range(2.5, (lx - 1.5 - a - 0.6).min(7.0).max(2.6));
+        let dist = sc.rng.range(2.5, (lx - 1.5 - a - 0.6).clamp(2.6, 7.0));
         (legs.clone(), place_target(&mut sc, &legs, class, dist, 3.0)?)
     };
     // Chairs at the desks (distractors for a chair target are checked in furnish).
@@ -780,7 +780,7 @@ fn carpark(name: &str, rng: &mut Rng) -> Option<Layout> {
         let dist = lane / 2.0 + bay_d + walk * 0.5;
         (legs.clone(), place_target(&mut sc, &legs, class, dist, 3.0)?)
     } else {
-        let a = sc.rng.stepped(5.0, (lx - 10.0).max(5.0).min(14.0), 1.0);
+        let a = sc.rng.stepped(5.0, (lx - 10.0).clamp(5.0, 14.0), 1.0);
         let legs = vec![Leg { turn_deg: 0, move_m: a }];
         let dist = sc.rng.range(3.5, 8.0).min(lx - 2.0 - a);
         (legs.clone(), place_target(&mut sc, &legs, class, dist, 6.0)?)
@@ -837,10 +837,10 @@ fn warehouse(name: &str, rng: &mut Rng) -> Option<Layout> {
         let b = sc.rng.stepped(0.0, 2.0, 1.0);
         let room = if turn > 0 { ly - y0 } else { y0 };
         let legs = vec![Leg { turn_deg: 0, move_m: a }, Leg { turn_deg: turn, move_m: b }];
-        let dist = sc.rng.range(2.5, (room - b - 1.5).max(2.6).min(6.0));
+        let dist = sc.rng.range(2.5, (room - b - 1.5).clamp(2.6, 6.0));
         (legs.clone(), place_target(&mut sc, &legs, class, dist, 2.0)?)
     } else {
-        let a = sc.rng.stepped(4.0, (lx - 9.0).max(4.0).min(14.0), 1.0);
+        let a = sc.rng.stepped(4.0, (lx - 9.0).clamp(4.0, 14.0), 1.0);
         let legs = vec![Leg { turn_deg: 0, move_m: a }];
         let dist = sc.rng.range(3.0, 7.0).min(lx - 2.0 - a);
         (legs.clone(), place_target(&mut sc, &legs, class, dist, 3.0)?)
