@@ -11,7 +11,9 @@
 //! - [`paper`]: the paper's Tables IV and V;
 //! - [`runner`]: one trial through a gateway (edge agent + MissionService);
 //! - [`calibrate`]: `vlnav calibrate-perception`, the perception error model
-//!   measured on the real detector and ReID embedder.
+//!   measured on the real detector and ReID embedder;
+//! - [`worlds`]: `vlnav worlds generate`, seeded worlds of six families with
+//!   instructions checked feasible on the true map.
 //!
 //! The gateway's `vlnav eval` parses [`EvalArgs`] and calls [`run_eval`]
 //! with the URI of a running gateway (the all-in-one stack).
@@ -25,6 +27,7 @@ pub mod report;
 pub mod runner;
 pub mod seed;
 pub mod suite;
+pub mod worlds;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -232,6 +235,8 @@ pub async fn run_eval(args: EvalArgs, target: Target) -> anyhow::Result<EvalRepo
         work_dir: args.out.join("worlds"),
     };
     let refs = ScenarioRef::from_suite(&suite);
+    let family_of: std::collections::BTreeMap<String, String> =
+        suite.scenarios.iter().filter_map(|s| s.family.clone().map(|f| (s.name.clone(), f))).collect();
     let ctx = RunContext::new(suite, settings)?;
     let layouts = write_layouts(&ctx.suite, &ctx.worlds, &args.out.join("plots"))?;
 
@@ -295,7 +300,13 @@ pub async fn run_eval(args: EvalArgs, target: Target) -> anyhow::Result<EvalRepo
 
     let summaries = aggregate::summarise(&records);
     let beside = args.beside.as_deref().map(report::Beside::load).transpose()?;
-    let markdown = report::markdown(&refs, &summaries, args.seed, trials, args.perception.as_str(), beside.as_ref());
+    let mut markdown =
+        report::markdown(&refs, &summaries, args.seed, trials, args.perception.as_str(), beside.as_ref());
+    // Generated worlds only: the shipped suite has no families, so its report is unchanged.
+    if !family_of.is_empty() {
+        markdown.push('\n');
+        markdown.push_str(&report::family_markdown(&family_of, &records));
+    }
     let summary_csv = report::summary_csv(&refs, &summaries)?;
     let trials_csv = report::trials_csv(&records)?;
     for (name, body) in [("report.md", &markdown), ("summary.csv", &summary_csv), ("trials.csv", &trials_csv)] {

@@ -442,6 +442,183 @@ pub fn trials_csv(records: &[TrialRecord]) -> anyhow::Result<String> {
     Ok(String::from_utf8(w.into_inner()?)?)
 }
 
+/// Wilson score interval of `k` successes in `n` trials at 95 % (z = 1.96),
+/// as fractions (0, 0 when n = 0).
+pub fn wilson_95(k: u32, n: u32) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 0.0);
+    }
+    let z = 1.96_f64;
+    let (n, p) = (f64::from(n), f64::from(k) / f64::from(n));
+    let denom = 1.0 + z * z / n;
+    let centre = (p + z * z / (2.0 * n)) / denom;
+    let half = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / denom;
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+/// Why a trial failed, in the robot's own words where it gave them: the
+/// question it asked (its target named generically), the executor's
+/// failure reason, or for a mission it believed done, `hard_contact` /
+/// `outside_radius`. Numbers are dropped so like reasons group.
+pub fn failure_reason(r: &TrialRecord) -> String {
+    use crate::metrics::Outcome;
+    let generic = |s: &str| -> String {
+        let mut out = String::new();
+        let lower = s.to_lowercase();
+        if let Some(i) = lower.find("could not find the ") {
+            let rest = &s[i + "could not find the ".len()..];
+            let end = rest.find(['.', ',', '?']).unwrap_or(rest.len());
+            out.push_str(&s[..i]);
+            out.push_str("could not find the <target>");
+            out.push_str(&rest[end..]);
+        } else {
+            out.push_str(s);
+        }
+        let no_digits: String = out.chars().map(|c| if c.is_ascii_digit() { '#' } else { c }).collect();
+        let mut squeezed = String::new();
+        for c in no_digits.chars() {
+            if !(c == '#' && squeezed.ends_with('#')) {
+                squeezed.push(c);
+            }
+        }
+        squeezed.replace('|', "/")
+    };
+    match r.outcome {
+        Outcome::Succeeded if r.completed() && r.contact.hard_by_robot > 0 => "hard_contact (completed)".into(),
+        Outcome::Succeeded => "outside_radius (completed)".into(),
+        other => format!("{}: {}", other.as_str(), generic(&r.reason)),
+    }
+}
+
+struct FamilyRow {
+    trials: u32,
+    successes: u32,
+    success_025: u32,
+    soft: u32,
+    robot_people: u32,
+    robot_things: u32,
+    walked_into: u32,
+    stops: Vec<f64>,
+    path_m: f64,
+}
+
+fn family_row(records: &[&TrialRecord]) -> FamilyRow {
+    let count = |f: &dyn Fn(&TrialRecord) -> bool| records.iter().filter(|r| f(r)).count() as u32;
+    FamilyRow {
+        trials: records.len() as u32,
+        successes: count(&|r| r.success()),
+        success_025: count(&|r| r.success_within(crate::aggregate::TIGHT_SLACK_M)),
+        soft: count(&|r| r.contact.soft_events > 0),
+        robot_people: count(&|r| r.contact.pedestrian_by_robot > 0),
+        robot_things: count(&|r| r.contact.hard_by_robot > r.contact.pedestrian_by_robot),
+        walked_into: count(&|r| r.contact.hard_events > r.contact.hard_by_robot),
+        stops: records.iter().filter(|r| r.completed()).map(|r| r.stop_error_m().abs()).collect(),
+        path_m: if records.is_empty() {
+            0.0
+        } else {
+            records.iter().map(|r| r.path_length_m).sum::<f64>() / records.len() as f64
+        },
+    }
+}
+
+fn family_line(out: &mut String, label: &str, mode: &str, row: &FamilyRow) {
+    let (lo, hi) = wilson_95(row.successes, row.trials);
+    let p = |k: u32| if row.trials == 0 { 0.0 } else { 100.0 * f64::from(k) / f64::from(row.trials) };
+    let stop = if row.stops.is_empty() {
+        "—".to_string()
+    } else {
+        let n = row.stops.len() as f64;
+        let m = row.stops.iter().sum::<f64>() / n;
+        let sd = (row.stops.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / n).sqrt();
+        format!("{m:.2} ± {sd:.2}")
+    };
+    let _ = writeln!(
+        out,
+        "| {label} | {mode} | {} | {} | {:.1} [{:.1}, {:.1}] | {:.1} | {:.1} | {} ({:.1}) | {} ({:.1}) | {} ({:.1}) | {} | {:.1} |",
+        row.trials,
+        row.successes,
+        p(row.successes),
+        100.0 * lo,
+        100.0 * hi,
+        p(row.success_025),
+        p(row.soft),
+        row.robot_people,
+        p(row.robot_people),
+        row.robot_things,
+        p(row.robot_things),
+        row.walked_into,
+        p(row.walked_into),
+        stop,
+        row.path_m,
+    );
+}
+
+/// The generated worlds' section: success with its 95 % Wilson interval per
+/// family (all modes, then per mode) and overall, trials in which the robot
+/// touched a person / a thing, trials in which a person walked into it,
+/// the stopping error, and the failures grouped by the robot's own reason.
+/// `family_of` maps a scenario name to its family; records of scenarios
+/// without one are left out.
+pub fn family_markdown(family_of: &std::collections::BTreeMap<String, String>, records: &[TrialRecord]) -> String {
+    use std::collections::BTreeMap;
+    let mut sorted: Vec<&TrialRecord> = records.iter().filter(|r| family_of.contains_key(&r.scenario)).collect();
+    sorted.sort_by(|a, b| (&a.scenario, a.mode, a.trial).cmp(&(&b.scenario, b.mode, b.trial)));
+    let mut by_family: BTreeMap<&str, Vec<&TrialRecord>> = BTreeMap::new();
+    for r in &sorted {
+        by_family.entry(family_of[&r.scenario].as_str()).or_default().push(r);
+    }
+    let worlds: std::collections::BTreeSet<&str> = sorted.iter().map(|r| r.scenario.as_str()).collect();
+    let mut out = String::new();
+    let _ = writeln!(out, "## Generated worlds — per family\n");
+    let _ = writeln!(
+        out,
+        "{} trials in {} worlds. Success % with its 95 % Wilson interval in brackets. Contact columns: trials \
+in which the robot moved into a person / into a thing (structure or an object), and in which a person walked \
+into it (not a failure); count (%).\n",
+        sorted.len(),
+        worlds.len()
+    );
+    out.push_str("| Family | Mode | Trials | Successes | Success % [95 % CI] | Success % at 0.25 m | Soft % trials | Robot hit a person | Robot hit a thing | Walked into | Stopping error (m) | Path (m) |\n");
+    out.push_str("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n");
+    for (fam, rs) in &by_family {
+        family_line(&mut out, fam, "all", &family_row(rs));
+        for mode in Mode::ALL {
+            let of: Vec<&TrialRecord> = rs.iter().copied().filter(|r| r.mode == mode).collect();
+            if !of.is_empty() {
+                family_line(&mut out, fam, mode.as_str(), &family_row(&of));
+            }
+        }
+    }
+    family_line(&mut out, "**overall**", "all", &family_row(&sorted));
+    for mode in Mode::ALL {
+        let of: Vec<&TrialRecord> = sorted.iter().copied().filter(|r| r.mode == mode).collect();
+        if !of.is_empty() {
+            family_line(&mut out, "**overall**", mode.as_str(), &family_row(&of));
+        }
+    }
+    let mut reasons: BTreeMap<String, BTreeMap<&str, u32>> = BTreeMap::new();
+    for r in sorted.iter().filter(|r| !r.success()) {
+        *reasons.entry(failure_reason(r)).or_default().entry(family_of[&r.scenario].as_str()).or_insert(0) += 1;
+    }
+    let _ = writeln!(out, "\n### Failures by the robot's reason\n");
+    let fams: Vec<&str> = by_family.keys().copied().collect();
+    let _ = writeln!(out, "| Reason | {} | Total |", fams.join(" | "));
+    let _ = writeln!(out, "|---|{}---:|", "---:|".repeat(fams.len()));
+    let mut rows: Vec<(u32, String, String)> = reasons
+        .iter()
+        .map(|(why, per)| {
+            let total: u32 = per.values().sum();
+            let cells: Vec<String> = fams.iter().map(|f| per.get(f).copied().unwrap_or(0).to_string()).collect();
+            (total, why.clone(), cells.join(" | "))
+        })
+        .collect();
+    rows.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)));
+    for (total, why, cells) in rows {
+        let _ = writeln!(out, "| {why} | {cells} | {total} |");
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -559,5 +736,44 @@ mod tests {
         // ‖(10,0) − (5,0)‖ = 5, asked 0.5 → 4.5 too far.
         assert!(failed.contains(",failed,false,"), "{failed}");
         assert!(failed.contains(",5.0000,4.5000,false,"), "{failed}");
+    }
+
+    #[test]
+    fn wilson_intervals_match_the_textbook() {
+        // 8 of 10: [0.490, 0.943] (Wilson 1927; e.g. Agresti & Coull 1998).
+        let (lo, hi) = wilson_95(8, 10);
+        assert!((lo - 0.4902).abs() < 1e-3 && (hi - 0.9433).abs() < 1e-3, "{lo} {hi}");
+        let (lo, hi) = wilson_95(0, 20);
+        assert!(lo == 0.0 && (hi - 0.1611).abs() < 1e-3, "{hi}");
+        assert_eq!(wilson_95(0, 0), (0.0, 0.0));
+        let (lo, hi) = wilson_95(50, 50);
+        assert!((lo - 0.9287).abs() < 1e-3 && hi == 1.0, "{lo}");
+    }
+
+    #[test]
+    fn the_family_section_groups_by_family_and_reason() {
+        let mut a = record(0, Outcome::Succeeded, (12.5, 2.0));
+        a.scenario = "hall-1".into();
+        let mut b = record(1, Outcome::Clarification, (1.0, 1.0));
+        b.scenario = "hall-2".into();
+        b.reason =
+            "the robot asked: I could not find the potted plant. Where should I look, or should I skip it?".into();
+        let mut c = record(2, Outcome::Clarification, (1.0, 1.0));
+        c.scenario = "home-1".into();
+        c.reason = "the robot asked: I could not find the chair. Where should I look, or should I skip it?".into();
+        let mut d = record(3, Outcome::Succeeded, (12.5, 2.0));
+        d.scenario = "indoor".into();
+        let fam: std::collections::BTreeMap<String, String> =
+            [("hall-1", "hall"), ("hall-2", "hall"), ("home-1", "home")].map(|(a, b)| (a.into(), b.into())).into();
+        let md = family_markdown(&fam, &[c.clone(), a.clone(), b.clone(), d.clone()]);
+        assert!(md.contains("3 trials in 3 worlds"), "{md}");
+        assert!(md.contains("| hall | all | 2 |"), "{md}");
+        assert!(
+            md.contains("| could not find the <target>") || md.contains("could not find the <target>. Where"),
+            "{md}"
+        );
+        assert!(md.contains("| clarification: the robot asked: I could not find the <target>. Where should I look, or should I skip it? | 1 | 1 | 2 |"), "{md}");
+        // Order-independent.
+        assert_eq!(md, family_markdown(&fam, &[d, b, a, c]));
     }
 }

@@ -174,6 +174,10 @@ pub struct Scenario {
     /// Overrides the suite's mission budget, sensor seconds.
     #[serde(default)]
     pub max_mission_s: Option<f64>,
+    /// The family of a generated world (`vlnav worlds generate`): the report
+    /// adds a section per family when any scenario has one.
+    #[serde(default)]
+    pub family: Option<String>,
     #[serde(rename = "instruction")]
     pub instructions: Vec<Instruction>,
 }

@@ -17,6 +17,14 @@ enum CredentialsCmd {
     K8s(vlnav::credentials::K8sCredentialsArgs),
 }
 
+#[derive(Subcommand)]
+enum WorldsCmd {
+    /// Write seeded worlds of a family (or the fixed test set) and a suite
+    /// manifest for `vlnav eval --suite DIR/suite.toml`; instructions the
+    /// Husky could not carry out on the true map are dropped and counted.
+    Generate(vlnav_eval::worlds::GenerateArgs),
+}
+
 #[derive(Parser)]
 #[command(name = "vlnav", version, about = "Language-driven, map-free navigation for service robots")]
 struct Cli {
@@ -40,6 +48,9 @@ enum Cmd {
     },
     /// Run the evaluation suite in lockstep simulation through the real services.
     Eval(vlnav_eval::EvalArgs),
+    /// Generated worlds: `vlnav worlds generate --family hall --count 20 --seed 0 --out DIR`.
+    #[command(subcommand)]
+    Worlds(WorldsCmd),
     /// Issue credentials: `vlnav credentials k8s` writes the Secrets of a
     /// Kubernetes deployment (certificates for every component, tokens).
     #[command(subcommand)]
@@ -209,6 +220,10 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             let report = vlnav_eval::run_eval(args, target).await;
             stack.shutdown().await?;
             report.map(|_| ())
+        }
+        Cmd::Worlds(WorldsCmd::Generate(args)) => {
+            print!("{}", vlnav_eval::worlds::run_generate(&args)?);
+            Ok(())
         }
         Cmd::Credentials(CredentialsCmd::K8s(args)) => {
             let dir = vlnav::credentials::write_k8s(&args)?;
