@@ -92,6 +92,11 @@ pub struct Options {
         default_value_t = 5.0
     )]
     pub progress_window_s: f64,
+    /// Plan a detour on a rolling grid when the direct way makes no
+    /// progress (docs/design.md §4, "Detours"). Off by default until it
+    /// improves the generated development set beyond its interval.
+    #[arg(long = "local-planner-detour", env = "VLNAV_LOCAL_PLANNER_DETOUR")]
+    pub detour: bool,
 }
 
 impl Default for Options {
@@ -117,6 +122,7 @@ impl Default for Options {
             depth_min_m: 0.3,
             depth_max_m: 10.0,
             progress_window_s: 5.0,
+            detour: false,
         }
     }
 }
@@ -185,6 +191,7 @@ impl Options {
             max_accel: self.max_accel,
             yaw_decel: self.yaw_decel,
             progress_window_s: self.progress_window_s,
+            detour: self.detour,
             ..FollowParams::default()
         }
     }

@@ -188,19 +188,35 @@ fn box_on_one_side_and_zone_on_the_other_are_both_respected() {
 
 #[test]
 fn no_free_path_stops_with_blocked() {
-    // A dead end as wide as the robot plus 0.33 m: side walls and a wall 1 m ahead.
-    let mut world = World::default();
-    world.add_box(1.0, -0.5, 1.1, 0.5, 1.0);
-    world.add_box(-1.0, 0.5, 1.1, 0.6, 1.0);
-    world.add_box(-1.0, -0.6, 1.1, -0.5, 1.0);
-    let run = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal_at(5.0, 0.0, 0.3), 1);
-    let out = &run.outputs[0];
+    let out = &dead_end(FollowParams::default()).outputs[0];
     assert_eq!(out.status, StepStatus::Blocked);
     assert_eq!((out.linear, out.angular), (0.0, 0.0));
     assert!(out.selection.is_none());
     assert_eq!(out.free_paths, 0);
     // It tried the smallest scale before giving up.
     assert!((out.path_scale - 0.75).abs() < 1e-9);
+}
+
+/// One frame in a dead end as wide as the robot plus 0.33 m: side walls
+/// and a wall 1 m ahead, the goal 5 m beyond it.
+fn dead_end(params: FollowParams) -> Run {
+    let mut world = World::default();
+    world.add_box(1.0, -0.5, 1.1, 0.5, 1.0);
+    world.add_box(-1.0, 0.5, 1.1, 0.6, 1.0);
+    world.add_box(-1.0, -0.6, 1.1, -0.5, 1.0);
+    drive_with(params, &world, Pose2::new(0.0, 0.0, 0.0), goal_at(5.0, 0.0, 0.3), 1)
+}
+
+#[test]
+fn with_detours_no_free_path_plans_a_way_back_out() {
+    let out = &dead_end(FollowParams { detour: true, ..FollowParams::default() }).outputs[0];
+    assert_eq!((out.linear, out.angular), (0.0, 0.0));
+    assert_eq!(out.free_paths, 0);
+    // The grid (unknown counts as free) shows a way back out and round the
+    // walls: the step stands this frame and reports the way's length,
+    // longer than the straight 5 m, instead of BLOCKED.
+    assert_eq!(out.status, StepStatus::Moving);
+    assert!(out.distance_to_goal > 6.0, "{}", out.distance_to_goal);
 }
 
 #[test]
@@ -559,4 +575,31 @@ fn near_a_walking_person_the_robot_drives_no_faster_than_it_can_stop_within_thei
     }
     assert!(top[0] > 0.5 && top[0] <= pp.near_walker_mps + 1e-9, "beside a walker: up to {:.2} m/s", top[0]);
     assert!(top[1] > 0.9, "beside a standing person the robot drives on at speed: {:.2} m/s", top[1]);
+}
+
+#[test]
+fn a_no_go_zone_wider_than_the_paths_reach_is_gone_round_with_detours_on_and_off() {
+    // A painted zone 7 m wide and 1 m deep across the route, room on both
+    // sides: every path toward the goal crosses it at first.
+    let mut world = World::default();
+    world.add_no_go_zone(3.0, -3.5, 4.0, 3.5);
+    for detour in [false, true] {
+        let params = FollowParams { detour, ..FollowParams::default() };
+        let run = drive_with(params, &world, Pose2::new(0.0, 0.0, 0.0), goal_at(8.0, 0.0, 0.3), 900);
+        check_gone_round(&run);
+    }
+}
+
+fn check_gone_round(run: &Run) {
+    let last = run.outputs.last().unwrap();
+    assert_eq!(
+        last.status,
+        StepStatus::Reached,
+        "stopped at {:?} after {} frames",
+        run.poses.last(),
+        run.outputs.len()
+    );
+    let closest = run.poses.iter().map(|p| distance_to_rect(p, 3.0, -3.5, 4.0, 3.5)).fold(f64::INFINITY, f64::min);
+    assert!(closest > HALF_WIDTH, "robot centre came within {closest:.3} m of the zone");
+    assert!(!run.outputs.iter().any(|o| o.status == StepStatus::Blocked), "reported BLOCKED on the way");
 }

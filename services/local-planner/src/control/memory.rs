@@ -130,17 +130,7 @@ impl RobotState {
             {
                 return false;
             }
-            let measured = cloud.seen.as_ref().is_none_or(|s| s.reaches(&b, p.memory_seen_margin_m));
-            // A cell is looked at only where the image shows its top: depth
-            // along its bearing passes over something low whether or not
-            // the camera sees it. A marking on the floor (a no-go cell with
-            // nothing standing on it) needs the floor itself in the image —
-            // a cable the robot is about to cross lies below the bottom row
-            // — and a water bottle 0.75 m ahead of a D455 0.6 m up is below
-            // it too.
-            let top = if m.cell.no_go && m.cell.blocking < 2 { 0.0 } else { p.top_of(&m.cell) };
-            let looked_at = input.view.sees_top(&b, p.memory_near_m, top);
-            if b.norm() > p.memory_range_m || (measured && looked_at) {
+            if b.norm() > p.memory_range_m || Self::seen_free(&m.cell, &b, cloud, input, p) {
                 return false;
             }
             cells.push(Cell { x: b.x as f32, y: b.y as f32, ..m.cell });
@@ -154,6 +144,27 @@ impl RobotState {
             }
         }
         ObstacleCloud { cells, raw_points: cloud.raw_points, seen: cloud.seen.clone(), people: cloud.people.clone() }
+    }
+
+    /// Whether this frame measured the place of a remembered `cell` at `b`
+    /// (`base_link`) and found it free: the frame's depth reached it along
+    /// its bearing, and the image shows it. A cell is looked at only where
+    /// the image shows its top: depth along its bearing passes over
+    /// something low whether or not the camera sees it. A marking on the
+    /// floor (a no-go cell with nothing standing on it) needs the floor
+    /// itself in the image — a cable the robot is about to cross lies below
+    /// the bottom row — and a water bottle 0.75 m ahead of a D455 0.6 m up
+    /// is below it too.
+    pub(super) fn seen_free(
+        cell: &Cell,
+        b: &Vector2<f64>,
+        cloud: &ObstacleCloud,
+        input: &StepInput<'_>,
+        p: &FollowParams,
+    ) -> bool {
+        let measured = cloud.seen.as_ref().is_none_or(|s| s.reaches(b, p.memory_seen_margin_m));
+        let top = if cell.no_go && cell.blocking < 2 { 0.0 } else { p.top_of(cell) };
+        measured && input.view.sees_top(b, p.memory_near_m, top)
     }
 
     /// Which of this frame's cells belong to something moving: a cell where
@@ -233,9 +244,20 @@ impl RobotState {
         tracing::debug!(stamp = input.stamp, ?cells, "{why}");
     }
 
+    /// The remembered cells the body keeps out of that stand still and are
+    /// no person: where each is (`odom`), the cell, and when it was seen.
+    pub(super) fn standing_keep_out(&self) -> impl Iterator<Item = (Vector2<f64>, Cell, f64)> + '_ {
+        self.memory
+            .values()
+            .filter(|m| !m.moving && m.cell.person == 0 && m.cell.keeps_out())
+            .map(|m| (m.at, m.cell, m.stamp))
+    }
+
     /// Time ran backwards (a replay restarted, a simulator reset): nothing
     /// remembered can be placed any more.
     pub(super) fn forget_all(&mut self) {
+        self.grid.cells.clear();
+        self.detour = None;
         self.memory.clear();
         self.recent.clear();
         self.people.clear();
@@ -253,6 +275,12 @@ impl RobotState {
             self.memory.insert(memory_key(&m.at), m);
         }
         self.people.reanchor(|at| now.transform(&last.inverse_transform(at)));
+        let grid = std::mem::take(&mut self.grid.cells);
+        for (_, mut g) in grid {
+            g.at = now.transform(&last.inverse_transform(&g.at));
+            self.grid.cells.insert(super::detour::grid_key(&g.at), g);
+        }
+        self.detour = None;
     }
 }
 

@@ -15,6 +15,7 @@
 //! | `guard.rs` | the footprint guard every command passes |
 //! | `creep.rs` | a robot the guard stops creeps on toward the goal's side |
 //! | `walkers.rs` | no command closes on a walking person |
+//! | `detour.rs` | a way beyond the paths' reach, searched on a rolling grid when stuck |
 //! | `progress.rs` | the no-progress watchdog |
 //! | `params.rs`, `view.rs` | the settings and the camera's view |
 //!
@@ -27,6 +28,7 @@
 //! 0.26 m short of the asked distance (docs/design.md §6).
 
 mod creep;
+mod detour;
 mod follow;
 mod goal;
 mod guard;
@@ -51,6 +53,7 @@ pub use view::View;
 use crate::cloud::ObstacleCloud;
 use crate::people::Tracker;
 use crate::planner::{Planner, Scratch, Selection};
+use detour::{Detour, DetourGrid};
 use goal::GoalMove;
 use memory::{RecentView, Remembered};
 
@@ -121,6 +124,10 @@ pub struct RobotState {
     /// The people seen lately, `odom`.
     people: Tracker,
     scratch: Scratch,
+    /// The detour layer's rolling grid of keep-out cells, `odom`.
+    grid: DetourGrid,
+    /// The detour being driven, if any.
+    detour: Option<Detour>,
 }
 
 impl RobotState {
@@ -133,6 +140,9 @@ impl RobotState {
     pub fn step(&mut self, planner: &Planner, p: &FollowParams, input: StepInput<'_>) -> StepOutput {
         let dt = self.begin_frame(&input, p);
         self.cloud = self.merge_memory(input.cloud, &input, p);
+        if p.detour {
+            self.update_grid(&input, p);
+        }
         let goal = input.goal;
         let goal_at = if goal.rotation_only { goal.pose.position() } else { self.clear_goal(&input, p) };
         let goal_base = input.pose.inverse_transform(&goal_at);
@@ -154,10 +164,34 @@ impl RobotState {
             self.rotating = false;
             return self.stop(out, StepStatus::Reached);
         }
-        if self.needs_rotation(bearing, p) {
-            return self.turn_in_place(&input, p, out, bearing, Some(&goal_base), dt);
+        // On a detour, toward its waypoint, and the distance left is the way's.
+        let detouring = self.detour_target(&input, &goal_at, p);
+        let (aim, along) = match detouring {
+            Some((waypoint, left)) => (input.pose.inverse_transform(&waypoint), Some(left)),
+            None => (goal_base, None),
+        };
+        let (_, aim_bearing) = polar(&aim);
+        let mut out = if self.needs_rotation(aim_bearing, p) {
+            self.turn_in_place(&input, p, out, aim_bearing, Some(&aim), dt)
+        } else {
+            self.follow(planner, p, &input, out, &aim, dt)
+        };
+        if let Some(left) = along {
+            (out.distance_to_goal, out.heading_error) = (left, aim_bearing);
         }
-        self.follow(planner, p, &input, out, &goal_base, dt)
+        let stuck = matches!(out.status, StepStatus::Blocked | StepStatus::NoProgress);
+        // A waypoint reached (as close as the body fits) is no goal reached.
+        let waypoint_reached = along.is_some() && out.status == StepStatus::Reached;
+        if (stuck || waypoint_reached) && self.plan_detour(&input, &goal_at, p) && (along.is_none() || !stuck) {
+            // A way round: this frame stands, the next drives it. Stuck on
+            // a detour already, the step says so: the executor decides.
+            out = self.stop(out, StepStatus::Moving);
+            (out.linear, out.angular) = (0.0, 0.0);
+            if let Some((_, left)) = self.detour_target(&input, &goal_at, p) {
+                out.distance_to_goal = left;
+            }
+        }
+        out
     }
 
     /// The frame's period (`nominal_period_s` until two stamps are known,
@@ -186,6 +220,7 @@ impl RobotState {
         self.last_stamp = Some(input.stamp);
         if self.last_goal != Some(input.goal) {
             self.last_goal = Some(input.goal);
+            self.detour = None;
             self.progress = None;
             self.rotating = false;
             self.aligned = false;

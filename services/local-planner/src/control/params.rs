@@ -80,6 +80,9 @@ pub struct FollowParams {
     /// Largest turn of a landmark's goal round the landmark where no
     /// sideways move clears its footprint, rad.
     pub goal_orbit_max_rad: f64,
+    /// Plan detours on the rolling grid when the direct way makes no
+    /// progress (`detour.rs`).
+    pub detour: bool,
 }
 
 impl FollowParams {
@@ -131,6 +134,7 @@ impl Default for FollowParams {
             guard_margin_m: 0.05,
             goal_shift_max_m: 0.4,
             goal_orbit_max_rad: std::f64::consts::FRAC_PI_2,
+            detour: false,
         }
     }
 }

@@ -393,7 +393,9 @@ pub struct GenerateArgs {
     /// First seed (development set: below 1,000,000).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// `test`: the fixed test set (55 worlds per family, seeds 1,000,000 on), instead of --family/--count/--seed.
+    /// `test`: the fixed test set (55 worlds per family, seeds 1,000,000 on),
+    /// instead of --family/--count/--seed; `dev`: --count worlds of every
+    /// family from --seed (development seeds).
     #[arg(long)]
     pub set: Option<String>,
     /// Output directory (worlds/*.toml, suite.toml, dropped.csv).
@@ -405,7 +407,14 @@ pub struct GenerateArgs {
 pub fn run_generate(args: &GenerateArgs) -> anyhow::Result<String> {
     let (which, what) = match (args.set.as_deref(), args.family) {
         (Some("test"), _) => (test_set(), "the test set, every family, seeds 1000000 to 1000054".to_string()),
-        (Some(other), _) => anyhow::bail!("--set {other}: the only named set is `test`"),
+        (Some("dev"), _) => {
+            let mut all = Vec::new();
+            for f in Family::ALL {
+                all.extend(dev_set(f, args.count, args.seed)?);
+            }
+            (all, format!("the development set, every family, {} worlds each from seed {}", args.count, args.seed))
+        }
+        (Some(other), _) => anyhow::bail!("--set {other}: the named sets are `test` and `dev`"),
         (None, Some(f)) => {
             (dev_set(f, args.count, args.seed)?, format!("family {f}, {} worlds from seed {}", args.count, args.seed))
         }
