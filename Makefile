@@ -21,11 +21,12 @@ tools:
 llama-server:
 	deploy/llama-server.sh
 
-# The model converters build in the profile the demo runs in, so the demo
-# compiles the workspace once.
-demo: export VLNAV_CARGO_PROFILE = release
+# The demo, its model converters and `make test` all build in the test
+# profile (dev, whose dependencies are optimised), so `make demo` then
+# `make test` compile the workspace once.
+demo: export VLNAV_CARGO_PROFILE = dev
 demo: models
-	cargo run --release -p vlnav -- demo
+	cargo run -p vlnav -- demo
 
 # The release binaries built on this machine, stripped, and ./models, on a
 # Debian base made with debootstrap once per machine (deploy/build-images.sh).

