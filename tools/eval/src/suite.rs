@@ -630,6 +630,39 @@ route = [{ at = [10.0, 0.0] }, { at = [12.0, 3.0], find = "chair" }]
     }
 
     #[test]
+    fn the_planner_records_a_plan_for_every_suite_text() {
+        // Every text the evaluation submits, written or derived from the
+        // scenario's nominal start, has its plan recorded in the planner's
+        // `tests/snapshots/suite_plans.tsv`, which the planner's `suite_plans`
+        // test holds byte for byte. With VLNAV_BLESS set, missing texts are
+        // appended with no plan; the planner's bless then records them.
+        let manifest = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let suite = Suite::load(&manifest.join("scenarios/suite.toml")).unwrap();
+        let snapshot = manifest.join("../../services/planner/tests/snapshots/suite_plans.tsv");
+        let recorded = std::fs::read_to_string(&snapshot).unwrap_or_default();
+        let known: BTreeSet<&str> = recorded.lines().filter_map(|l| l.split_once('\t').map(|(t, _)| t)).collect();
+        let mut missing: Vec<String> = Vec::new();
+        for sc in &suite.scenarios {
+            let world = crate::runner::load_world(&sc.world_path(&suite)).unwrap().world;
+            for ins in &sc.instructions {
+                let text = ins.text(world.start);
+                if !known.contains(text.as_str()) && !missing.contains(&text) {
+                    missing.push(text);
+                }
+            }
+        }
+        if std::env::var_os("VLNAV_BLESS").is_some() && !missing.is_empty() {
+            let mut out = recorded.clone();
+            for t in &missing {
+                out.push_str(&format!("{t}\t\n"));
+            }
+            std::fs::write(&snapshot, out).unwrap();
+            return;
+        }
+        assert!(missing.is_empty(), "no recorded plan in {} for: {missing:#?}", snapshot.display());
+    }
+
+    #[test]
     fn geometric_turns_are_relative_to_the_current_heading() {
         let route = [
             Leg { at: [0.0, 5.0], find: None, d_s: None, size: 0.0 },
