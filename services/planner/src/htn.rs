@@ -34,7 +34,7 @@
 //! - "a little / a bit / slightly ahead", or a drive with no distance: [`VAGUE_SHORT_M`] (the paper's 2.5 m);
 //! - "a few metres": 3 m; "a couple of metres": 2 m; "far / a long way": [`VAGUE_FAR_M`];
 //! - "a step": [`STEP_M`] per step; "a bit more" after a drive: another [`VAGUE_SHORT_M`];
-//! - a plain left/right turn: ±1.57 rad; "slightly / bear / veer": ±[`SLIGHT_TURN_RAD`]; "half left": ±0.79;
+//! - a plain left/right turn: ±1.57 rad; "slightly / bear / veer", "turn left a bit": ±[`SLIGHT_TURN_RAD`]; "half left": ±0.79;
 //!   "around / U-turn / about-turn": 3.14; "twice" doubles a turn; a number with no unit in a drive: metres;
 //! - "go back N m", "reverse N m", "back up N m": turn around (3.14) and drive N m, so the camera faces the way
 //!   it drives.
