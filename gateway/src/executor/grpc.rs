@@ -329,6 +329,7 @@ pub fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
             target: r.target.clone(),
             class_id: r.class_id,
         }),
+        source: s.source.clone(),
     }
 }
 
@@ -348,6 +349,7 @@ pub fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
             target: r.target.clone(),
             class_id: r.class_id,
         }),
+        source: s.source.clone(),
     }
 }
 

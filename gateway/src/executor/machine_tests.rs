@@ -18,6 +18,7 @@ fn step(action: Action) -> PlanStep {
         d_s: 0.0,
         duration_s: 0.0,
         reference: None,
+        source: String::new(),
     }
 }
 

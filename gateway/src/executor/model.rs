@@ -67,6 +67,8 @@ pub struct PlanStep {
     /// FIND / FOLLOW: the object the target was described by ("the chair next
     /// to the table"), carried with the plan.
     pub reference: Option<TargetReference>,
+    /// The instruction's words the step came from (planner `ActionStep.source`).
+    pub source: String,
 }
 
 /// An object a target is described by its relation to.

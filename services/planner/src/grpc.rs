@@ -54,6 +54,7 @@ pub fn step_to_proto(s: &Step) -> pb::ActionStep {
             target: r.target.clone(),
             class_id: r.class_id,
         }),
+        source: s.source.clone(),
     }
 }
 
@@ -93,6 +94,7 @@ pub fn plan_from_proto(p: &pb::ActionPlan) -> Result<Plan, Status> {
                 target: r.target.clone(),
                 class_id: r.class_id,
             }),
+            source: s.source.clone(),
         });
     }
     Ok(Plan::new(steps))

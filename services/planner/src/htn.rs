@@ -34,7 +34,7 @@
 //! - "a little / a bit / slightly ahead", or a drive with no distance: [`VAGUE_SHORT_M`] (the paper's 2.5 m);
 //! - "a few metres": 3 m; "a couple of metres": 2 m; "far / a long way": [`VAGUE_FAR_M`];
 //! - "a step": [`STEP_M`] per step; "a bit more" after a drive: another [`VAGUE_SHORT_M`];
-//! - a plain left/right turn: ±1.57 rad; "slightly / bear / veer": ±[`SLIGHT_TURN_RAD`]; "half left": ±0.79;
+//! - a plain left/right turn: ±1.57 rad; "slightly / bear / veer", "turn left a bit": ±[`SLIGHT_TURN_RAD`]; "half left": ±0.79;
 //!   "around / U-turn / about-turn": 3.14; "twice" doubles a turn; a number with no unit in a drive: metres;
 //! - "go back N m", "reverse N m", "back up N m": turn around (3.14) and drive N m, so the camera faces the way
 //!   it drives.
@@ -112,6 +112,20 @@ struct Token {
     w: String,
     /// Starts with an upper-case letter in the original text.
     capital: bool,
+    /// The word as tokenised, before verb forms and misspellings were
+    /// normalised: what a plan step quotes as its source.
+    raw: String,
+}
+
+impl Token {
+    fn new(w: String, capital: bool) -> Token {
+        Token { raw: w.clone(), w, capital }
+    }
+}
+
+/// The words of `t` as the person said them (lower case).
+fn spoken(t: &[Token]) -> String {
+    t.iter().map(|x| x.raw.as_str()).collect::<Vec<_>>().join(" ")
 }
 
 /// Titles before a name; the spelled-out forms are what speech recognition writes.
@@ -120,8 +134,7 @@ const HONORIFICS: &[&str] = &[
 ];
 
 fn tokenize(text: &str) -> Vec<Token> {
-    let text =
-        text.replace(['\u{2019}', '\u{2018}'], "'").replace(['\u{201c}', '\u{201d}'], "\"").replace('°', " degrees ");
+    let text = text.replace(['\u{2019}', '\u{2018}'], "'").replace(['\u{201c}', '\u{201d}'], "\"").replace('°', " ° ");
     let mut out = Vec::new();
     let mut paren: Option<String> = None;
     for raw in text.split_whitespace() {
@@ -147,6 +160,11 @@ fn tokenize(text: &str) -> Vec<Token> {
 }
 
 fn push_word(out: &mut Vec<Token>, raw: &str) {
+    // "60°": read as degrees, quoted as said.
+    if raw == "°" {
+        out.push(Token { w: "degrees".into(), capital: false, raw: raw.into() });
+        return;
+    }
     // A capital that only starts a sentence says nothing about a name.
     let sentence_start = out.last().is_none_or(|t| matches!(t.w.as_str(), "." | "!" | "?"));
     let capital = raw.chars().next().is_some_and(char::is_uppercase) && !sentence_start;
@@ -156,9 +174,9 @@ fn push_word(out: &mut Vec<Token>, raw: &str) {
         let end = w.rfind(')').map(|i| i + 1).unwrap_or(w.len());
         let rest = w[end..].to_string();
         w.truncate(end);
-        out.push(Token { w, capital });
+        out.push(Token::new(w, capital));
         for c in rest.chars().filter(|c| matches!(c, ',' | '.' | ';' | '!' | '?' | ':')) {
-            out.push(Token { w: c.to_string(), capital: false });
+            out.push(Token::new(c.to_string(), false));
         }
         return;
     }
@@ -180,7 +198,7 @@ fn push_word(out: &mut Vec<Token>, raw: &str) {
         split_number_unit(out, &w, capital);
     }
     for t in trailing.into_iter().rev().take(1) {
-        out.push(Token { w: t, capital: false });
+        out.push(Token::new(t, false));
     }
 }
 
@@ -191,18 +209,18 @@ fn split_number_unit(out: &mut Vec<Token>, w: &str, capital: bool) {
     if digits > 0 && digits < w.len() && w[..digits].chars().any(|c| c.is_ascii_digit()) {
         let unit = &w[digits..];
         if unit.chars().all(|c| c.is_ascii_alphabetic()) {
-            out.push(Token { w: w[..digits].to_string(), capital: false });
-            out.push(Token { w: unit.to_string(), capital: false });
+            out.push(Token::new(w[..digits].to_string(), false));
+            out.push(Token::new(unit.to_string(), false));
             return;
         }
     }
     if w.contains('-') && w.split('-').all(|p| word_number(p).is_some()) {
         for p in w.split('-') {
-            out.push(Token { w: p.to_string(), capital });
+            out.push(Token::new(p.to_string(), capital));
         }
         return;
     }
-    out.push(Token { w: w.to_string(), capital });
+    out.push(Token::new(w.to_string(), capital));
 }
 
 /// Words that carry no meaning for the plan.
@@ -300,6 +318,13 @@ fn base_verb(w: &str) -> Option<&'static str> {
         "visiting" => "visit",
         "reaching" => "reach",
         "spinning" => "spin",
+        "found" => "find",
+        "reached" => "reach",
+        "turned" => "turn",
+        "gone" | "went" => "go",
+        "seen" => "see",
+        "spotted" => "spot",
+        "arrived" | "arriving" | "arrives" => "arrive",
         "dont" | "do't" => "don't",
         _ => return None,
     })
@@ -483,6 +508,252 @@ fn clauses(tokens: &[Token]) -> Vec<Vec<Token>> {
     merged
 }
 
+/// Ways of saying "follow" with a person: "stay with her", "accompany Maria",
+/// "go with Peter", "keep up with the child".
+const FOLLOW_PHRASES: &[&[&str]] = &[
+    &["keep", "up", "with"],
+    &["tag", "along", "with"],
+    &["stay", "close", "to"],
+    &["stay", "with"],
+    &["go", "with"],
+    &["come", "with"],
+    &["walk", "with"],
+    &["stick", "with"],
+    &["accompany"],
+];
+
+/// Rewrites the phrases of [`FOLLOW_PHRASES`] to "follow" (the source keeps the words said).
+fn rewrite_follow(tokens: Vec<Token>) -> Vec<Token> {
+    let mut out: Vec<Token> = Vec::with_capacity(tokens.len());
+    let mut i = 0;
+    while i < tokens.len() {
+        let ws: Vec<&str> = tokens[i..].iter().take(3).map(|t| t.w.as_str()).collect();
+        if let Some(p) = FOLLOW_PHRASES.iter().find(|p| ws.starts_with(p)) {
+            let raw = tokens[i..i + p.len()].iter().map(|t| t.raw.as_str()).collect::<Vec<_>>().join(" ");
+            out.push(Token { w: "follow".into(), capital: false, raw });
+            i += p.len();
+            continue;
+        }
+        out.push(tokens[i].clone());
+        i += 1;
+    }
+    out
+}
+
+/// Verbs that start a new instruction in run-on speech ("go forward 5 m turn
+/// left", "find the dog follow it").
+const RUNON_VERBS: &[&str] =
+    &["go", "turn", "move", "find", "follow", "come", "drive", "walk", "return", "rotate", "spin", "locate", "search"];
+
+/// Words after which a verb continues the same instruction ("go find", "to turn", "you go").
+fn continues_before_verb(w: &str) -> bool {
+    FILLER.contains(&w)
+        || DETERMINERS.contains(&w)
+        || TURN_WORDS.contains(&w)
+        || DRIVE_WORDS.contains(&w)
+            && !matches!(w, "forward" | "forwards" | "ahead" | "straight" | "back" | "backward" | "backwards")
+        || TRAVEL_VERBS.contains(&w)
+        || FIND_VERBS.contains(&w)
+        || NEGATIONS.contains(&w)
+        || matches!(
+            w,
+            "me" | "us"
+                | "let"
+                | "we"
+                | "don't"
+                | "not"
+                | "mind"
+                | "may"
+                | "might"
+                | "must"
+                | "please"
+                | "and"
+                | "or"
+                | "to"
+                | "look"
+                | "who"
+                | "which"
+                | "where"
+                | "when"
+                | "once"
+                | "before"
+                | "after"
+                | "if"
+                | "lets"
+                | "gonna"
+                | "wanna"
+                | "will"
+                | "shall"
+                | "did"
+                | "do"
+                | "does"
+                | "be"
+                | "who's"
+                | "by"
+                | "as"
+                | "until"
+        )
+}
+
+/// Splits run-on speech at a verb that follows a finished instruction.
+fn split_runon(clause: Vec<Token>) -> Vec<Vec<Token>> {
+    let mut out = vec![Vec::new()];
+    for (i, t) in clause.iter().enumerate() {
+        let starts = i > 0
+            && RUNON_VERBS.contains(&t.w.as_str())
+            && !continues_before_verb(&clause[i - 1].w)
+            && !noun_turn(&clause, i)
+            && clause.get(i + 1).is_none_or(|n| !matches!(n.w.as_str(), "sign" | "light" | "lights"));
+        if starts && out.last().is_some_and(|c| !c.is_empty()) {
+            out.push(Vec::new());
+        }
+        if let Some(last) = out.last_mut() {
+            last.push(t.clone());
+        }
+    }
+    out
+}
+
+/// "turn" as a noun: "take a right turn", "make a sharp left turn" (but
+/// "… on the right turn left" starts a new instruction).
+fn noun_turn(t: &[Token], i: usize) -> bool {
+    t[i].w == "turn"
+        && i > 0
+        && matches!(
+            t[i - 1].w.as_str(),
+            "left"
+                | "right"
+                | "sharp"
+                | "slight"
+                | "quick"
+                | "full"
+                | "hard"
+                | "quarter"
+                | "half"
+                | "u"
+                | "gentle"
+                | "small"
+                | "little"
+                | "wide"
+                | "tight"
+        )
+        && t.get(i + 1).is_none_or(|n| !matches!(n.w.as_str(), "left" | "right" | "around" | "back" | "round"))
+}
+
+/// Words that begin a time clause: "before you …", "after turning …", "once you have …".
+fn subordinator(t: &[Token], k: usize) -> Option<&'static str> {
+    let w = |j: usize| t.get(j).map(|x| x.w.as_str()).unwrap_or("");
+    let kind = match w(k) {
+        "before" => "before",
+        "after" => "after",
+        "once" => "after",
+        "when" | "whenever" => "after",
+        "as" if w(k + 1) == "soon" && w(k + 2) == "as" => "after",
+        _ => return None,
+    };
+    let next = if w(k) == "as" { w(k + 3) } else { w(k + 1) };
+    let verb_next = |x: &str| {
+        TURN_WORDS.contains(&x)
+            || DRIVE_WORDS.contains(&x)
+            || TRAVEL_VERBS.contains(&x)
+            || FIND_VERBS.contains(&x)
+            || matches!(x, "follow" | "return" | "having")
+    };
+    (matches!(next, "you" | "you've" | "you're" | "we" | "we've" | "i" | "i've") || verb_next(next)).then_some(kind)
+}
+
+/// Drops a time clause's opening words: "once you have found the dog" → "found the dog".
+fn strip_subordinator(t: &[Token]) -> Vec<Token> {
+    let mut i = 0;
+    let w = |j: usize| t.get(j).map(|x| x.w.as_str()).unwrap_or("");
+    if w(0) == "as" && w(1) == "soon" && w(2) == "as" {
+        i = 3;
+    } else if matches!(w(0), "before" | "after" | "once" | "when" | "whenever" | "first") {
+        i = 1;
+    }
+    while matches!(
+        w(i),
+        "you" | "you've" | "you're" | "we" | "we've" | "i" | "i've" | "have" | "had" | "having" | "are" | "that" | "do"
+    ) {
+        i += 1;
+    }
+    t[i.min(t.len())..].to_vec()
+}
+
+/// Puts clauses in the order of the events they describe: "before you go to A,
+/// find B" → B, A; "go to A but first find B" → B, A; "find A after you reach
+/// B" → B, A; "after …", "once …", "when …" at the start already are. Run-on
+/// speech is split at each new instruction's verb first.
+fn order_events(clauses: Vec<Vec<Token>>, notes: &mut Vec<String>) -> Vec<Vec<Token>> {
+    let mut pieces: Vec<Vec<Token>> = Vec::new();
+    let mut priority: Vec<bool> = Vec::new();
+    for clause in clauses {
+        let initial_prior = matches!(clause.first().map(|t| t.w.as_str()), Some("first"))
+            || matches!(words(&clause).as_slice(), ["before", "that", ..]);
+        let initial_before = subordinator(&clause, 0) == Some("before");
+        // A time clause inside: "find the laptop after you go to the desk".
+        let mut main = clause.clone();
+        let mut sub: Option<(Vec<Token>, &'static str)> = None;
+        if let Some(k) = (1..clause.len()).find(|&k| subordinator(&clause, k).is_some()) {
+            let kind = subordinator(&clause, k).unwrap_or("after");
+            main = clause[..k].to_vec();
+            sub = Some((clause[k..].to_vec(), kind));
+        }
+        let mut parts: Vec<(Vec<Token>, bool)> = Vec::new();
+        parts.extend(split_runon(main).into_iter().map(|r| (r, false)));
+        // "before you go to the chair find the bottle": the chair comes after.
+        if initial_before && parts.len() > 1 {
+            notes.push("\"before …\": planned in the order of events".into());
+            let first = parts.remove(0);
+            parts.push(first);
+        }
+        if let Some((sub, kind)) = sub {
+            let runs = split_runon(sub);
+            if kind == "after" {
+                notes.push("\"after / once / when …\": planned in the order of events".into());
+                for (j, r) in runs.into_iter().enumerate() {
+                    parts.insert(j, (r, false));
+                }
+            } else {
+                parts.extend(runs.into_iter().map(|r| (r, false)));
+            }
+        }
+        if initial_prior
+            && !pieces.is_empty()
+            && !initial_before
+            && let Some(p) = parts.first_mut()
+        {
+            p.1 = true;
+        }
+        for (p, prior) in parts {
+            pieces.push(p);
+            priority.push(prior);
+        }
+    }
+    // "X but first Y", "X, but before that Y": Y moves before X.
+    let mut out: Vec<Vec<Token>> = Vec::new();
+    for (p, prior) in pieces.into_iter().zip(priority) {
+        let p = if subordinator(&p, 0).is_some() || matches!(p.first().map(|t| t.w.as_str()), Some("first")) {
+            strip_subordinator(&p)
+        } else if matches!(words(&p).as_slice(), ["before", "that", ..]) {
+            p[2..].to_vec()
+        } else {
+            p
+        };
+        if p.is_empty() {
+            continue;
+        }
+        if prior && !out.is_empty() {
+            notes.push("\"but first / before that …\": planned before the clause it follows".into());
+            let at = out.len() - 1;
+            out.insert(at, p);
+        } else {
+            out.push(p);
+        }
+    }
+    out
+}
+
 /// Words of a side phrase that is not a clause by itself ("on your left").
 const SIDE_PHRASE_WORDS: &[&str] =
     &["on", "in", "to", "at", "your", "the", "my", "left", "right", "hand", "side", "left-hand", "right-hand"];
@@ -640,6 +911,7 @@ fn length_unit(w: &str) -> Option<f64> {
         "yd" | "yard" | "yards" => 0.9144,
         "in" | "inch" | "inches" => 0.0254,
         "km" | "kilometer" | "kilometers" | "kilometre" | "kilometres" => 1000.0,
+        "mile" | "miles" | "mi" => 1609.344,
         "step" | "steps" | "pace" | "paces" => STEP_M,
         _ => return None,
     })
@@ -766,6 +1038,12 @@ enum Directive {
         dist: f64,
         desc: String,
     },
+    /// A drive whose distance is the default of a bare drive verb ("go
+    /// left"): a distance said in the next clause replaces it.
+    DefaultMove {
+        yaw: f64,
+        desc: String,
+    },
     /// Allocentric: go to a landmark. `turn_after` is a turn made there
     /// ("turn right at the statue").
     Find {
@@ -873,7 +1151,7 @@ const DRIVE_WORDS: &[&str] = &[
 /// Verbs of going somewhere; with a destination preposition they name a FIND target.
 const TRAVEL_VERBS: &[&str] = &[
     "go", "head", "walk", "drive", "move", "navigate", "proceed", "get", "come", "travel", "roll", "wander", "scoot",
-    "run", "hurry", "make", "pull", "continue", "advance", "ride", "rush", "step", "return",
+    "run", "hurry", "make", "pull", "continue", "advance", "ride", "rush", "step", "return", "arrive",
 ];
 /// Words between a travel verb and its destination: "head over to", "make your way to".
 const PARTICLES: &[&str] = &["over", "up", "on", "down", "yourself", "your", "way", "straight", "directly", "right"];
@@ -1142,8 +1420,12 @@ fn turn_magnitude(ws: &[&str], q: &Quantities) -> Option<f64> {
     {
         return Some(HALF_TURN);
     }
+    // "turn left a bit": a turn with no drive word, made small.
+    let turn_only = ws.iter().any(|w| TURN_WORDS.contains(w)) && !ws.iter().any(|w| DRIVE_WORDS.contains(w));
+    let a_bit = ["bit", "little", "tad", "touch"].iter().any(|w| has_seq(ws, &["a", w]).is_some());
     if ws.iter().any(|w| matches!(*w, "slightly" | "slight" | "bear" | "veer"))
         || has_seq(ws, &["a", "little", "to", "the"]).is_some()
+        || turn_only && a_bit
     {
         return Some(SLIGHT_TURN_RAD * times);
     }
@@ -1234,8 +1516,10 @@ fn resolve(t: &[Token], ctx: Ellipsis) -> Vec<Directive> {
 
     // Constraints: "don't go near the cables", "avoid the stairs", "never mind the chair";
     // but "don't stop until you reach the car" is a FIND of the car.
-    if ws.iter().any(|w| NEGATIONS.contains(w))
-        || has_seq(&ws, &["do", "not"]).is_some()
+    // "if you don't mind", "would you not mind": politeness, not a constraint.
+    let negation_at = |i: usize| NEGATIONS.contains(&ws[i]) && ws.get(i + 1) != Some(&"mind");
+    if (0..ws.len()).any(negation_at)
+        || has_seq(&ws, &["do", "not"]).is_some_and(|i| ws.get(i + 2) != Some(&"mind"))
         || has_seq(&ws, &["stay", "away"]).is_some()
         || has_seq(&ws, &["keep", "away"]).is_some()
     {
@@ -1245,6 +1529,15 @@ fn resolve(t: &[Token], ctx: Ellipsis) -> Vec<Directive> {
             return resolve(&t[u + 1..], ctx);
         }
         return vec![Directive::Negated(text)];
+    }
+
+    // "… and stop", "then stop there": every plan ends where its last step does.
+    if ws.iter().any(|w| matches!(*w, "stop" | "halt"))
+        && ws.iter().all(|w| {
+            matches!(*w, "stop" | "halt" | "there" | "here" | "now" | "just" | "right" | "please") || FILLER.contains(w)
+        })
+    {
+        return Vec::new();
     }
 
     // RETURN: "go back", "come back", "return", "report back to me", "head home".
@@ -1378,6 +1671,26 @@ fn resolve(t: &[Token], ctx: Ellipsis) -> Vec<Directive> {
             dist = v;
         }
         let vague_far = ws.iter().any(|w| matches!(*w, "far")) || has_seq(&ws, &["long", "way"]).is_some();
+        // Motion only from words the parser knows: a phrase it does not
+        // understand ("the far lamp", "move the chair") is asked about, never driven.
+        if let Some(unknown) = not_motion_words(t) {
+            return vec![Directive::Ask {
+                question: format!(
+                    "I did not understand \"{unknown}\" in \"{}\". How far and which way should I move, or what should I find?",
+                    spoken(t)
+                ),
+                reason: format!(
+                    "\"{unknown}\" is not a direction, distance or angle I know; no motion is planned from it"
+                ),
+            }];
+        }
+        // "go right 45 degrees": an angle and no forward word is a turn.
+        let forward_word = ws.iter().any(|w| {
+            matches!(*w, "ahead" | "forward" | "forwards" | "straight" | "advance" | "proceed" | "continue" | "keep")
+        });
+        let angle_only = !q.angles.is_empty() && q.lengths.is_empty() && q.bare.is_empty() && !forward_word;
+        let vague_words =
+            vague_far || ws.iter().any(|w| matches!(*w, "little" | "bit" | "slightly" | "some" | "further"));
         // A drive word without a distance: "move a little ahead", "go straight".
         let pure_turn = turn_cue
             && !ws.iter().any(|w| {
@@ -1397,9 +1710,11 @@ fn resolve(t: &[Token], ctx: Ellipsis) -> Vec<Directive> {
                         | "keep"
                 )
             });
-        if dist == 0.0 && !pure_turn {
+        let mut defaulted = false;
+        if dist == 0.0 && !pure_turn && !angle_only {
             // "a little", an unqualified drive and "turn left and go" take the short default.
             dist = if vague_far { VAGUE_FAR_M } else { VAGUE_SHORT_M };
+            defaulted = !vague_words;
         }
         let yaw = if backwards {
             HALF_TURN
@@ -1427,10 +1742,165 @@ fn resolve(t: &[Token], ctx: Ellipsis) -> Vec<Directive> {
         if dist == 0.0 && yaw == 0.0 {
             return vec![Directive::Unknown(text)];
         }
+        if defaulted {
+            return vec![Directive::DefaultMove { yaw, desc: text }];
+        }
         return vec![Directive::Move { yaw, dist, desc: text }];
     }
 
     ellipsis_or_aside(t, &ws, &q, text, ctx)
+}
+
+/// Words a clause that becomes a MOVE may hold besides numbers: directions,
+/// units, vague distances, verbs of turning and driving, fillers. Anything
+/// else (an object, a place, a word the parser does not know) means the
+/// clause was not understood as motion.
+const MOTION_EXTRA: &[&str] = &[
+    "for",
+    "by",
+    "of",
+    "about",
+    "around",
+    "approximately",
+    "roughly",
+    "some",
+    "or",
+    "so",
+    "more",
+    "bit",
+    "little",
+    "far",
+    "long",
+    "way",
+    "slightly",
+    "slight",
+    "twice",
+    "again",
+    "take",
+    "make",
+    "do",
+    "hand",
+    "side",
+    "your",
+    "me",
+    "us",
+    "distance",
+    "direction",
+    "degrees",
+    "full",
+    "quarter",
+    "turn",
+    "just",
+    "over",
+    "along",
+    "on",
+    "up",
+    "in",
+    "off",
+    "go",
+    "going",
+    "keep",
+    "it",
+    "yourself",
+    "till",
+    "all",
+    "small",
+    "tiny",
+    "short",
+    "tad",
+    "touch",
+    "smidge",
+    "while",
+    "right",
+    "left",
+    "into",
+    "towards",
+    "toward",
+    "forth",
+    "is",
+    "be",
+    "we",
+    "let's",
+    "other",
+    "opposite",
+    "face",
+    "facing",
+    "one",
+    "half",
+    "once",
+    "mind",
+    "if",
+    "possible",
+    "meters",
+    "few",
+    "couple",
+    "please",
+    "not",
+    "how",
+    "wondering",
+    "was",
+    "think",
+    "maybe",
+    "kind",
+    "as",
+    "very",
+    "much",
+    "really",
+    "same",
+    "exactly",
+    "only",
+    "about-face",
+    "clock",
+    "counter",
+    "anti",
+    "position",
+    "heading",
+    "backwards",
+    "backward",
+    "reverse",
+    "reversing",
+    "back",
+    "round",
+    "roll",
+    "spin",
+    "bear",
+    "veer",
+    "pivot",
+    "hang",
+    "sharp",
+    "gentle",
+    "gently",
+    "fully",
+    "completely",
+    "whole",
+    "entire",
+    "steps",
+];
+
+/// The first word of a motion clause that is not motion vocabulary, if any.
+fn not_motion_words(t: &[Token]) -> Option<String> {
+    let known = |w: &str| {
+        w.chars().all(|c| !c.is_alphabetic())
+            || FILLER.contains(&w)
+            || TURN_WORDS.contains(&w)
+            || DRIVE_WORDS.contains(&w)
+            || TRAVEL_VERBS.contains(&w)
+            || PARTICLES.contains(&w)
+            || KEYWORDS.contains(&w)
+            || DETERMINERS.contains(&w)
+            || SIDE_PHRASE_WORDS.contains(&w)
+            || MORE.contains(&w)
+            || MOTION_EXTRA.contains(&w)
+            || NUMBER_WORDS.contains(&w)
+            || length_unit(w).is_some()
+            || angle_unit(w).is_some()
+            || duration_unit(w).is_some()
+            || HONORIFICS.contains(&w)
+            || matches!(w, "hundred" | "thousand" | "and" | "a" | "counterclockwise" | "anticlockwise" | "clockwise")
+            || w.starts_with("counter-")
+            || w.starts_with("anti-")
+    };
+    t.iter().find(|x| !known(&x.w)).map(|x| x.raw.clone())
 }
 
 /// The earliest FIND cue in the clause: (its position, where the target starts).
@@ -1498,7 +1968,12 @@ fn ellipsis_or_aside(t: &[Token], ws: &[&str], q: &Quantities, text: String, ctx
     }
     // A distance: "then 2 more", "a bit more", "another 3".
     let vague = content.iter().any(|w| matches!(*w, "bit" | "little" | "more" | "further"));
-    if !action_word && (ctx.last_was_move || !q.bare.is_empty()) && side(ws) == 0 && q.angles.is_empty() {
+    if !action_word
+        && (ctx.last_was_move || !q.bare.is_empty())
+        && side(ws) == 0
+        && q.angles.is_empty()
+        && not_motion_words(t).is_none()
+    {
         if let Some(&(v, _, _)) = q.bare.first() {
             return vec![Directive::Move { yaw: 0.0, dist: v, desc: text }];
         }
@@ -1508,7 +1983,12 @@ fn ellipsis_or_aside(t: &[Token], ws: &[&str], q: &Quantities, text: String, ctx
     }
     // A turn: "left again", "then right", "90 degrees more".
     let s = side(ws);
-    if !action_word && (s != 0 || !q.angles.is_empty()) && content.iter().all(|w| !DETERMINERS.contains(w)) {
+    // Only motion words: "the left chair" is a target, never a turn.
+    if !action_word
+        && (s != 0 || !q.angles.is_empty())
+        && content.iter().all(|w| !DETERMINERS.contains(w))
+        && not_motion_words(t).is_none()
+    {
         let s = if s != 0 { s } else { ctx.last_side };
         if s == 0 {
             return vec![Directive::Ask {
@@ -1681,25 +2161,31 @@ const PLACES: &[&str] = &[
     "base",
 ];
 
-/// A phrase with its misspelt class words corrected ("chiar" → "chair"), if any were.
-fn corrected_phrase(phrase: &str) -> Option<String> {
+/// A phrase with its misspelt class words corrected ("chiar" → "chair"), if any were;
+/// `Err` with the classes when a word is equally near two of them ("cas": car, cat).
+fn corrected_phrase(phrase: &str) -> Result<Option<String>, Vec<String>> {
     let vocab = crate::grounding::class_words();
     let mut changed = false;
-    let fixed: Vec<String> = phrase
-        .split_whitespace()
-        .map(|w| {
-            if crate::grounding::lexical(w).is_none()
-                && !NOT_TYPOS.contains(&w)
-                && let Some(c) = crate::typo::correct(w, vocab, true)
-            {
-                changed = true;
-                c.to_string()
-            } else {
-                w.to_string()
+    let mut fixed: Vec<String> = Vec::new();
+    for w in phrase.split_whitespace() {
+        if crate::grounding::lexical(w).is_none() && !NOT_TYPOS.contains(&w) {
+            let found = crate::typo::candidates(w, vocab, true);
+            let mut classes: Vec<i32> =
+                found.iter().filter_map(|c| crate::grounding::lexical(c).map(|g| g.class_id)).collect();
+            classes.sort_unstable();
+            classes.dedup();
+            if classes.len() > 1 {
+                return Err(classes.iter().map(|&c| vlnav_proto::coco::CLASSES[c as usize].to_string()).collect());
             }
-        })
-        .collect();
-    changed.then(|| fixed.join(" "))
+            if let Some(c) = found.first() {
+                changed = true;
+                fixed.push(c.to_string());
+                continue;
+            }
+        }
+        fixed.push(w.to_string());
+    }
+    Ok(changed.then(|| fixed.join(" ")))
 }
 
 fn ground_target(g: &Grounder, phrase: &str, capital: bool) -> Ground {
@@ -1728,11 +2214,13 @@ fn ground_target(g: &Grounder, phrase: &str, capital: bool) -> Ground {
     match g.ground(phrase) {
         Ok(found) => describe(found, phrase),
         Err(u) => match corrected_phrase(phrase) {
-            Some(fixed) => match crate::grounding::lexical(&fixed) {
+            Ok(Some(fixed)) => match crate::grounding::lexical(&fixed) {
                 Some(found) => describe(found, &fixed),
                 None => Ground::Unknown(u),
             },
-            None => Ground::Unknown(u),
+            Ok(None) => Ground::Unknown(u),
+            // Equally near two classes: ask which, offering both.
+            Err(options) => Ground::Unknown(Ungrounded { phrase: phrase.to_string(), suggestions: options }),
         },
     }
 }
@@ -1792,6 +2280,10 @@ struct Builder<'g> {
     facts: Vec<(i32, Reference)>,
     bare_verbs: Vec<String>,
     ellipsis: Ellipsis,
+    /// The words of the clause being read, as spoken: each step's source.
+    source: String,
+    /// The last step is a drive whose distance is a bare drive verb's default.
+    last_move_defaulted: bool,
 }
 
 impl<'g> Builder<'g> {
@@ -1805,6 +2297,8 @@ impl<'g> Builder<'g> {
             facts: Vec::new(),
             bare_verbs: Vec::new(),
             ellipsis: Ellipsis::default(),
+            source: String::new(),
+            last_move_defaulted: false,
         }
     }
 
@@ -1820,18 +2314,37 @@ impl<'g> Builder<'g> {
     }
 
     fn push_move(&mut self, yaw: f64, dist: f64, desc: String) {
+        self.push_move_from(yaw, dist, desc, false);
+    }
+
+    fn push_move_from(&mut self, yaw: f64, dist: f64, desc: String, defaulted: bool) {
         self.ellipsis.last_was_move = true;
         if yaw != 0.0 {
             self.ellipsis.last_side = if yaw > 0.0 { 1 } else { -1 };
         }
+        let was_defaulted = std::mem::replace(&mut self.last_move_defaulted, defaulted);
+        let source = self.source.clone();
         if let Some(prev) = self.last_step()
             && prev.action == Action::Move
         {
+            let merged = if prev.source.split(" + ").any(|s| s == source) {
+                prev.source.clone()
+            } else {
+                format!("{} + {source}", prev.source)
+            };
+            if was_defaulted && yaw == 0.0 && dist > 0.0 && !defaulted {
+                // "go left, then forward 1 m": the distance said replaces the bare verb's default.
+                prev.f_dist = dist;
+                prev.desc = format!("{}, {desc}", prev.desc);
+                prev.source = merged;
+                return;
+            }
             if prev.f_dist == 0.0 {
                 // A pure turn, then a drive or another turn: one MOVE turns, then drives.
                 prev.yaw = wrap(prev.yaw + yaw);
                 prev.f_dist = dist;
                 prev.desc = format!("{}, {desc}", prev.desc);
+                prev.source = merged;
                 if prev.yaw.abs() < 0.005 && prev.f_dist < 0.1 {
                     self.items.pop();
                 }
@@ -1841,10 +2354,11 @@ impl<'g> Builder<'g> {
                 // "then 2 more metres": the drives add up.
                 prev.f_dist += dist;
                 prev.desc = format!("{}, {desc}", prev.desc);
+                prev.source = merged;
                 return;
             }
         }
-        self.items.push(Item::Step(Step::moving(desc, dist, yaw)));
+        self.items.push(Item::Step(Step::moving(desc, dist, yaw).with_source(source)));
     }
 
     /// A spoken reference object → a plan reference, or a place reported as not grounded.
@@ -1937,7 +2451,14 @@ impl<'g> Builder<'g> {
                     self.notes.extend(note);
                     (phrase, class_id, person)
                 }
-                Ground::Unknown(u) if implied => {
+                Ground::Unknown(u)
+                    if implied
+                        && u.phrase.split_whitespace().all(|w| {
+                            FILLER.contains(&w)
+                                || NOT_TYPOS.contains(&w)
+                                || matches!(w, "lot" | "bunch" | "ton" | "million")
+                        }) =>
+                {
                     self.notes.push(format!("ignored \"{}\": not an action, a place or an object I know", u.phrase));
                     return Ok(());
                 }
@@ -1966,7 +2487,9 @@ impl<'g> Builder<'g> {
         reference: Option<Reference>,
     ) -> Result<(), Parsed> {
         self.antecedent = Some(Antecedent { phrase: phrase.clone(), class_id, person: person.clone() });
+        self.last_move_defaulted = false;
         let mut step = Step { target: phrase, class_id, person, reference, ..Step::blank(action) };
+        step.source = self.source.clone();
         step.d_s = d_s.map(round2);
         if action == Action::Follow {
             step.duration_s = duration_s;
@@ -2001,11 +2524,16 @@ impl<'g> Builder<'g> {
             Directive::Ask { question, reason } => Err(self.ask(question, reason, vec![])),
             Directive::Return => {
                 self.ellipsis.last_was_move = false;
-                self.items.push(Item::Step(Step::go_back("return to the start")));
+                self.last_move_defaulted = false;
+                self.items.push(Item::Step(Step::go_back("return to the start").with_source(self.source.clone())));
                 Ok(())
             }
             Directive::Move { yaw, dist, desc } => {
                 self.push_move(yaw, dist, desc);
+                Ok(())
+            }
+            Directive::DefaultMove { yaw, desc } => {
+                self.push_move_from(yaw, VAGUE_SHORT_M, desc, true);
                 Ok(())
             }
             Directive::Find { target, d_s, turn_after } => {
@@ -2164,8 +2692,8 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
         );
     }
     let mut b = Builder::new(grounder);
-    let tokens = normalise(tokenize(text), &mut b.notes);
-    let clauses = clauses(&tokens);
+    let tokens = rewrite_follow(normalise(tokenize(text), &mut b.notes));
+    let clauses = order_events(clauses(&tokens), &mut b.notes);
     // The plan so far before each clause, so that a correction can take one back.
     let mut before: Vec<Vec<Item>> = Vec::with_capacity(clauses.len());
     for (ci, clause) in clauses.iter().enumerate() {
@@ -2183,6 +2711,7 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
         if ws.is_empty() || (ci == 0 && clauses.len() > 1 && discourse_marker(&ws)) {
             continue;
         }
+        b.source = spoken(clause);
         for d in resolve(clause, b.ellipsis) {
             if let Err(ask) = b.directive(d, false) {
                 return ask;

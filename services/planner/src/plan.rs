@@ -60,6 +60,12 @@ pub struct Step {
     /// FIND / FOLLOW: the object the target was described by ("the chair
     /// next to the table"); the executor prefers the instance nearest it.
     pub reference: Option<Reference>,
+    /// The instruction's words this step came from ("turn right 90 degrees",
+    /// "a little ahead"): every distance and angle of a MOVE is read from
+    /// them, or is the documented default of a vague phrase among them.
+    /// Empty for a plan that did not come from the rule parser. Not part of
+    /// the JSON form (the paper's keys); proto `ActionStep.source`.
+    pub source: String,
 }
 
 /// A target described by its relation to another object (JSON key `ref`).
@@ -122,7 +128,13 @@ impl Step {
             d_s: None,
             duration_s: None,
             reference: None,
+            source: String::new(),
         }
+    }
+
+    pub fn with_source(mut self, source: impl Into<String>) -> Step {
+        self.source = source.into();
+        self
     }
 
     pub fn with_person(mut self, person: impl Into<String>) -> Step {
@@ -233,6 +245,7 @@ impl Plan {
                 d_s: f("d_s"),
                 duration_s: f("duration_s"),
                 reference: o.get("ref").and_then(Reference::from_json),
+                source: String::new(),
             });
         }
         Ok(Plan { steps })

@@ -87,6 +87,27 @@ pub fn correct<'a>(word: &str, vocabulary: &[&'a str], long_reach: bool) -> Opti
     best.map(|(_, v)| v)
 }
 
+/// Every vocabulary word at the smallest acceptable distance from `word`
+/// (several when two words are equally near: "cas" → "car", "cat").
+pub fn candidates<'a>(word: &str, vocabulary: &[&'a str], long_reach: bool) -> Vec<&'a str> {
+    if !word.chars().all(|c| c.is_ascii_lowercase()) || vocabulary.contains(&word) {
+        return Vec::new();
+    }
+    let mut best: Vec<(usize, &'a str)> = Vec::new();
+    for &v in vocabulary {
+        if !acceptable(word, v, long_reach) {
+            continue;
+        }
+        let d = distance(word, v, 2);
+        match best.first() {
+            Some((bd, _)) if d > *bd => {}
+            Some((bd, _)) if d < *bd => best = vec![(d, v)],
+            _ => best.push((d, v)),
+        }
+    }
+    best.into_iter().map(|(_, v)| v).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -88,7 +88,21 @@ impl Validator {
         if !errors.is_empty() {
             return Err(errors);
         }
-        self.validate_value(plan.to_json())
+        let mut validated = self.validate_value(plan.to_json())?;
+        // The JSON form has no sources; the validator keeps the steps' order and
+        // splits a long move into consecutive parts, so each part keeps its step's words.
+        let mut parts = validated.plan.steps.iter_mut();
+        for s in &plan.steps {
+            let n = if s.action == Action::Move && s.f_dist > MAX_STEP_M && s.f_dist <= MAX_SPLIT_M {
+                (s.f_dist / MAX_STEP_M).ceil() as usize
+            } else {
+                1
+            };
+            for part in parts.by_ref().take(n) {
+                part.source.clone_from(&s.source);
+            }
+        }
+        Ok(validated)
     }
 }
 

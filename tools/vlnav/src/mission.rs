@@ -32,8 +32,13 @@ pub struct MissionArgs {
     pub stop_on_question: bool,
 }
 
-/// A one-line description of a plan step.
+/// A one-line description of a plan step, with the instruction's words it came from.
 pub fn describe_step(s: &ActionStep) -> String {
+    let what = describe_action(s);
+    if s.source.is_empty() { what } else { format!("{what}  <- \"{}\"", s.source) }
+}
+
+fn describe_action(s: &ActionStep) -> String {
     match ActionKind::try_from(s.action).unwrap_or_default() {
         ActionKind::Move if s.f_dist.abs() < 0.1 => format!("MOVE turn {:+.2} rad", s.yaw),
         ActionKind::Move => format!("MOVE turn {:+.2} rad, then {:.2} m", s.yaw, s.f_dist),
