@@ -13,6 +13,14 @@
 //! the first N lines of each category and `--limit N` the first N of those
 //! (the LLM backends take seconds per instruction on a CPU). `--misses`
 //! lists every wrong answer.
+//! `--set heldback` runs the held-back instructions (`tests/heldback/`)
+//! instead, `--set both` both sets. `--fallback gguf|openai` keeps the rules
+//! as the backend and asks that model only where the rules would ask the
+//! user (its plan kept only if it passes the validator and the provenance
+//! check):
+//!
+//!     cargo run --release -p vlnav-planner --example corpus -- --set both --fallback gguf --misses
+//!
 //! `VLNAV_MODELS_DIR` locates the models (default `models`).
 
 use std::collections::BTreeMap;
@@ -32,6 +40,8 @@ fn main() -> anyhow::Result<()> {
     let mut start_llama = false;
     let mut show_misses = false;
     let mut threads = 2usize;
+    let mut fallback: Option<String> = None;
+    let mut set = "corpus".to_string();
     let mut args = std::env::args().skip(1);
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -46,8 +56,10 @@ fn main() -> anyhow::Result<()> {
             "--llama-server" => start_llama = true,
             "--threads" => threads = args.next().ok_or_else(|| anyhow::anyhow!("--threads needs N"))?.parse()?,
             "--misses" => show_misses = true,
+            "--fallback" => fallback = Some(args.next().ok_or_else(|| anyhow::anyhow!("--fallback needs a name"))?),
+            "--set" => set = args.next().ok_or_else(|| anyhow::anyhow!("--set needs corpus, heldback or both"))?,
             other => anyhow::bail!(
-                "unknown argument {other:?}; use --backend rules|gguf|openai, --per-category N, --limit N, --openai-url URL, --llama-server, --threads N, --misses"
+                "unknown argument {other:?}; use --backend rules|gguf|openai, --per-category N, --limit N, --openai-url URL, --llama-server, --threads N, --misses, --fallback gguf|openai, --set corpus|heldback|both"
             ),
         }
     }
@@ -67,13 +79,22 @@ fn main() -> anyhow::Result<()> {
         openai_url,
         openai_model: "gemma3-270m".into(),
         openai_timeout_s: 300.0,
+        fallback: fallback.clone(),
         ..Options::default()
     })?;
 
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/corpus");
+    let dirs: &[&str] = match set.as_str() {
+        "corpus" => &["tests/corpus"],
+        "heldback" => &["tests/heldback"],
+        "both" => &["tests/corpus", "tests/heldback"],
+        other => anyhow::bail!("--set {other:?}: use corpus, heldback or both"),
+    };
+    let mut all = Vec::new();
+    for d in dirs {
+        all.extend(corpus::load_dir(&PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(d)).map_err(anyhow::Error::msg)?);
+    }
     let mut taken: BTreeMap<String, usize> = BTreeMap::new();
-    let cases: Vec<_> = corpus::load_dir(&dir)
-        .map_err(anyhow::Error::msg)?
+    let cases: Vec<_> = all
         .into_iter()
         .filter(|c| {
             let n = taken.entry(c.category.clone()).or_default();
@@ -110,8 +131,15 @@ fn main() -> anyhow::Result<()> {
                 corpus::describe(&planned)
             ));
         }
-        if backend != "rules" {
-            eprintln!("[{}/{}] {:.2} s {}", i + 1, cases.len(), latencies[i].as_secs_f64(), case.at);
+        if backend != "rules" || (fallback.is_some() && latencies[i] > Duration::from_millis(100)) {
+            eprintln!(
+                "[{}/{}] {:.2} s {} [{}]",
+                i + 1,
+                cases.len(),
+                latencies[i].as_secs_f64(),
+                case.at,
+                planned.backend
+            );
         }
     }
     latencies.sort();
@@ -120,7 +148,10 @@ fn main() -> anyhow::Result<()> {
         latencies.get(k).copied().unwrap_or_default()
     };
     let mean = latencies.iter().sum::<Duration>() / latencies.len().max(1) as u32;
-    println!("backend {backend}: {} instructions", cases.len());
+    match &fallback {
+        Some(f) => println!("backend {backend}, fallback {f}: {} instructions ({set})", cases.len()),
+        None => println!("backend {backend}: {} instructions ({set})", cases.len()),
+    }
     println!("{}", tally.markdown());
     println!(
         "latency per instruction: p50 {:.2} ms, p95 {:.2} ms, mean {:.2} ms",
@@ -130,7 +161,7 @@ fn main() -> anyhow::Result<()> {
     );
     let produced: Vec<String> = produced_by.iter().map(|(b, n)| format!("{b} {n}")).collect();
     println!("answers produced by: {}", produced.join(", "));
-    if backend != "rules" {
+    if backend != "rules" || fallback.is_some() {
         println!("the backend's own answers: {own}, of which right: {own_right}");
     }
     if show_misses {

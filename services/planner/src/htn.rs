@@ -2720,3 +2720,110 @@ fn parse_unchecked(text: &str, grounder: &Grounder) -> Parsed {
     }
     b.finish()
 }
+
+// ---- What the words state ---------------------------------------------------
+
+/// The motion an instruction's words state, read with the parser's own
+/// lexicon: what a plan proposed by another backend may drive and turn
+/// ([`crate::provenance`]). Every value carries the words it was read from.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Stated {
+    /// Distances in metres, in the order said: a number with a length unit,
+    /// a bare number in a clause with a drive word, or the documented default
+    /// of a vague phrase ("a little ahead", "far", a drive with no distance).
+    pub lengths: Vec<(f64, String)>,
+    /// Turns in radians, counter-clockwise positive, in the order said: an
+    /// angle with its unit, or the default of a side word, "slightly", "half
+    /// left", "around"; a turn with no side of its own takes the side said
+    /// before it ("left 45 degrees, then another 45"); an about-turn is
+    /// the same either way round.
+    pub angles: Vec<(f64, String)>,
+    /// Durations in seconds ("for 20 seconds", "for a minute").
+    pub durations: Vec<f64>,
+    /// The words that ask to go back to the start ("go back", "return").
+    pub back: Option<String>,
+    /// Every word, lower case, as tokenised and as normalised (verb forms,
+    /// misspellings of keywords).
+    pub words: Vec<String>,
+}
+
+/// Reads what `text` states about motion (see [`Stated`]).
+pub fn stated(text: &str) -> Stated {
+    let mut notes = Vec::new();
+    let tokens = normalise(tokenize(text), &mut notes);
+    let mut out = Stated::default();
+    for t in &tokens {
+        out.words.push(t.raw.clone());
+        if t.w != t.raw {
+            out.words.push(t.w.clone());
+        }
+    }
+    let mut last_side = 0i8;
+    for clause in clauses(&tokens).into_iter().flat_map(split_runon) {
+        let ws = words(&clause);
+        let q = quantities(&clause);
+        let drives = ws.iter().any(|w| DRIVE_WORDS.contains(w));
+        let turns = ws.iter().any(|w| TURN_WORDS.contains(w));
+        for &(v, a, b) in &q.lengths {
+            out.lengths.push((v, spoken(&clause[a..b.min(clause.len())])));
+        }
+        let more = ws.iter().any(|w| MORE.contains(w) || *w == "another" || *w == "again");
+        if drives || turns || more {
+            for &(v, a, b) in &q.bare {
+                out.lengths.push((v, spoken(&clause[a..b.min(clause.len()).max(a + 1)])));
+            }
+        }
+        // A vague drive ("go left", "a little ahead", "far"), not a destination ("go to the chair").
+        if (drives || more && !turns && q.angles.is_empty())
+            && q.lengths.is_empty()
+            && q.bare.is_empty()
+            && not_motion_words(&clause).is_none()
+        {
+            let far = has(&ws, "far") || has_seq(&ws, &["long", "way"]).is_some();
+            let value = if far { VAGUE_FAR_M } else { VAGUE_SHORT_M };
+            out.lengths.push((value, spoken(&clause)));
+        }
+        let sd = side(&ws);
+        let side_here = if sd != 0 { sd } else { last_side };
+        last_side = side_here;
+        let mut turn = |a: f64, words: String| {
+            let about = a >= HALF_TURN - 0.01;
+            if about || side_here != 0 {
+                out.angles.push((if about { a } else { a * f64::from(side_here) }, words));
+            }
+        };
+        for a in &q.angles {
+            turn(*a, spoken(&clause));
+        }
+        out.durations.extend(&q.durations);
+        if q.angles.is_empty()
+            && let Some(a) = turn_magnitude(&ws, &q)
+        {
+            turn(a, spoken(&clause));
+        }
+        // "go back 2 m", "reverse 2 m" turn around before driving.
+        let backwards = ws.iter().any(|w| matches!(*w, "backward" | "backwards" | "reverse"));
+        if (has(&ws, "back") || backwards) && (!q.lengths.is_empty() || !q.bare.is_empty()) {
+            turn(HALF_TURN, spoken(&clause));
+        }
+        let back = (has(&ws, "back") && q.lengths.is_empty() && q.bare.is_empty())
+            || ws.iter().any(|w| matches!(*w, "return" | "home" | "start" | "started" | "beginning"))
+            // "bring me a cup": fetching ends where it began.
+            || ws.iter().any(|w| matches!(*w, "bring" | "fetch"));
+        if back && out.back.is_none() {
+            out.back = Some(spoken(&clause));
+        }
+    }
+    out
+}
+
+/// The COCO class id `phrase` names, as the parser grounds a target: a named
+/// person (class 0), the synonyms, MiniLM similarity, then a misspelling of
+/// a class word ("chiar"). `None` for places, unknowns and ties.
+pub fn class_of(grounder: &Grounder, phrase: &str) -> Option<i32> {
+    let capital = phrase.chars().next().is_some_and(char::is_uppercase);
+    match ground_target(grounder, phrase, capital) {
+        Ground::Class { class_id, .. } => Some(class_id),
+        _ => None,
+    }
+}

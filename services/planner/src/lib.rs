@@ -10,8 +10,11 @@
 //! - `gguf`: Gemma 3 270M in-process through candle ([`gguf`]).
 //!
 //! Every plan from every backend passes [`validate::Validator`] (the JSON
-//! Schema in `schema/action_plan.schema.json` plus semantic rules); an LLM
-//! gets one repair round, then the rule parser answers. Layout: [`plan`],
+//! Schema in `schema/action_plan.schema.json` plus semantic rules); an LLM's
+//! plan also passes [`provenance`] (its distances, angles and targets are the
+//! instruction's words); an LLM gets one repair round, then the rule parser
+//! answers. With `--fallback`, the rules answer first and an LLM is asked
+//! only where they would ask the user. Layout: [`plan`],
 //! [`validate`], [`htn`], [`grounding`], [`minilm`], [`replan`], [`llm`],
 //! [`openai`], [`gguf`], [`corpus`] (the paraphrase corpus and its scoring)
 //! — pure logic; [`planner`] ties them together;
@@ -31,6 +34,7 @@ pub mod minilm;
 pub mod openai;
 pub mod plan;
 pub mod planner;
+pub mod provenance;
 pub mod replan;
 pub mod typo;
 pub mod validate;
@@ -64,6 +68,13 @@ pub struct Options {
     /// Gemma GGUF for the gguf backend (default `<models-dir>/gemma/gemma3-270m-q4_k_m.gguf`).
     #[arg(long, env = "VLNAV_PLANNER_GGUF")]
     pub gguf: Option<PathBuf>,
+    /// A backend (openai or gguf) asked when the rule parser cannot plan an
+    /// instruction and would ask instead: its plan is used only if it passes
+    /// the validator and the provenance check (every distance, angle and
+    /// target in the instruction's words); otherwise the question stands.
+    /// Unset: the rules' question is the answer.
+    #[arg(long, env = "VLNAV_PLANNER_FALLBACK")]
+    pub fallback: Option<String>,
     /// Load the GGUF model at start instead of on the first gguf request.
     #[arg(long, env = "VLNAV_PLANNER_PRELOAD_GGUF", default_value_t = false)]
     pub preload_gguf: bool,
@@ -80,6 +91,7 @@ impl Default for Options {
             openai_api_key: None,
             openai_timeout_s: 30.0,
             gguf: None,
+            fallback: None,
             preload_gguf: false,
         }
     }

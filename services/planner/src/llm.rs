@@ -2,14 +2,16 @@
 //! the static constraints (action set, class list, units, limits, examples),
 //! one repair round quoting the validator's errors, then the rule-based
 //! parser. Whatever a model writes, only a plan that passes
-//! [`Validator`] leaves here, so text such as "ignore previous instructions"
+//! [`Validator`] and the provenance check ([`crate::provenance`]: every
+//! distance, angle and target is in the instruction's words) leaves here, so text such as "ignore previous instructions"
 //! cannot produce anything outside the closed action set.
 
 use serde_json::{Value, json};
 
 use crate::grounding::Grounder;
 use crate::htn;
-use crate::plan::{MAX_STEP_M, MAX_STEPS, Outcome, Planned};
+use crate::plan::{MAX_STEP_M, MAX_STEPS, Outcome, Plan, Planned};
+use crate::provenance;
 use crate::validate::{PLAN_SCHEMA, Validator};
 
 /// A chat model: a system prompt and a user message in, text out.
@@ -110,51 +112,62 @@ pub fn response_schema() -> Value {
     })
 }
 
-/// Plans `instruction` with `model`; repairs once; falls back to the rules.
-pub fn plan_with(model: &mut dyn ChatModel, instruction: &str, validator: &Validator, grounder: &Grounder) -> Planned {
+/// A model's plan for `instruction` that passed the validator and the
+/// provenance check ([`crate::provenance`]), with notes; or why none did,
+/// with notes. The model gets one repair round quoting what was refused.
+pub struct Proposal {
+    pub plan: Result<Plan, Vec<String>>,
+    pub notes: Vec<String>,
+}
+
+/// Asks `model` for a plan of `instruction`: validator, then provenance
+/// check; one repair round quoting the refusal.
+pub fn propose(model: &mut dyn ChatModel, instruction: &str, validator: &Validator, grounder: &Grounder) -> Proposal {
     let name = model.name();
     let system = system_prompt();
     let schema = response_schema();
     let mut notes = Vec::new();
-    let first = model.complete(&system, &user_prompt(instruction), &schema);
-    let errors = match first {
-        Err(e) => vec![e.to_string()],
-        Ok(text) => match validator.validate_text(&text) {
-            Ok(v) => {
-                notes.extend(v.notes);
-                return Planned {
-                    outcome: Outcome::Plan(v.plan),
-                    backend: name.to_string(),
-                    notes,
-                    ungrounded: vec![],
-                };
-            }
-            Err(errors) => {
-                notes.push(format!("{name}: output rejected by the validator: {}", errors.join("; ")));
-                let repair = format!(
-                    "{}\nYour previous plan was:\n{}\nIt is invalid: {}\nWrite the corrected plan.\nPlan:",
-                    user_prompt(instruction),
-                    truncate(&text, 1500),
-                    errors.join("; ")
-                );
-                match model.complete(&system, &repair, &schema) {
-                    Err(e) => vec![e.to_string()],
-                    Ok(text) => match validator.validate_text(&text) {
-                        Ok(v) => {
-                            notes.push(format!("{name}: repaired after one round"));
-                            notes.extend(v.notes);
-                            return Planned {
-                                outcome: Outcome::Plan(v.plan),
-                                backend: name.to_string(),
-                                notes,
-                                ungrounded: vec![],
-                            };
-                        }
-                        Err(errors) => errors,
-                    },
-                }
-            }
-        },
+    let check = |text: &str, notes: &mut Vec<String>| -> Result<Plan, Vec<String>> {
+        let v = validator.validate_text(text)?;
+        let plan = provenance::check(&v.plan, instruction, grounder)
+            .map_err(|e| e.into_iter().map(|m| format!("not what the instruction says: {m}")).collect::<Vec<_>>())?;
+        notes.extend(v.notes);
+        Ok(plan)
+    };
+    let text = match model.complete(&system, &user_prompt(instruction), &schema) {
+        Err(e) => return Proposal { plan: Err(vec![e.to_string()]), notes },
+        Ok(text) => text,
+    };
+    let errors = match check(&text, &mut notes) {
+        Ok(plan) => return Proposal { plan: Ok(plan), notes },
+        Err(errors) => errors,
+    };
+    notes.push(format!("{name}: output refused: {}", errors.join("; ")));
+    let repair = format!(
+        "{}\nYour previous plan was:\n{}\nIt is invalid: {}\nWrite the corrected plan.\nPlan:",
+        user_prompt(instruction),
+        truncate(&text, 1500),
+        errors.join("; ")
+    );
+    let plan = match model.complete(&system, &repair, &schema) {
+        Err(e) => Err(vec![e.to_string()]),
+        Ok(text) => check(&text, &mut notes),
+    };
+    if plan.is_ok() {
+        notes.push(format!("{name}: repaired after one round"));
+    }
+    Proposal { plan, notes }
+}
+
+/// Plans `instruction` with `model`; repairs once; falls back to the rules.
+pub fn plan_with(model: &mut dyn ChatModel, instruction: &str, validator: &Validator, grounder: &Grounder) -> Planned {
+    let name = model.name();
+    let Proposal { plan, mut notes } = propose(model, instruction, validator, grounder);
+    let errors = match plan {
+        Ok(plan) => {
+            return Planned { outcome: Outcome::Plan(plan), backend: name.to_string(), notes, ungrounded: vec![] };
+        }
+        Err(errors) => errors,
     };
     notes.push(format!("{name}: no valid plan ({}); fell back to the rule-based parser", errors.join("; ")));
     let parsed = htn::parse(instruction, grounder);
@@ -172,6 +185,40 @@ fn truncate(s: &str, n: usize) -> &str {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A model that answers from a script: the check around a model, not a model.
+    struct Scripted(Vec<&'static str>);
+
+    impl ChatModel for Scripted {
+        fn name(&self) -> &'static str {
+            "scripted"
+        }
+        fn complete(&mut self, _: &str, _: &str, _: &Value) -> Result<String, LlmError> {
+            Ok(self.0.remove(0).to_string())
+        }
+    }
+
+    #[test]
+    fn a_model_plan_with_motion_the_words_do_not_state_is_refused_then_repaired() {
+        let mut m = Scripted(vec![
+            r#"[{"action":"FIND","target":"chair","id":56},{"action":"MOVE","desc":"far","f_dist":8.0,"yaw":0.0}]"#,
+            r#"[{"action":"FIND","target":"chair","id":56}]"#,
+        ]);
+        let p = propose(&mut m, "go to the chair, then the far lamp", &Validator::new(), &Grounder::lexical_only());
+        let plan = p.plan.unwrap();
+        assert_eq!(plan.steps.len(), 1);
+        assert_eq!(plan.steps[0].source, "chair");
+        assert!(p.notes.iter().any(|n| n.contains("no such distance")), "{:?}", p.notes);
+    }
+
+    #[test]
+    fn a_model_that_never_points_to_the_words_falls_back_to_the_rules() {
+        let bad = r#"[{"action":"MOVE","desc":"","f_dist":3.0,"yaw":0.0}]"#;
+        let mut m = Scripted(vec![bad, bad]);
+        let p = plan_with(&mut m, "find the cup", &Validator::new(), &Grounder::lexical_only());
+        assert_eq!(p.backend, "rules");
+        assert!(p.notes.iter().any(|n| n.contains("fell back")), "{:?}", p.notes);
+    }
 
     #[test]
     fn the_examples_pass_the_validator() {

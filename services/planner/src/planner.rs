@@ -42,6 +42,8 @@ pub struct Planner {
     validator: Arc<Validator>,
     grounder: Grounder,
     default_backend: String,
+    /// Asked where the rules would ask the user (`Options::fallback`).
+    fallback: Option<String>,
     openai: Option<OpenAiChat>,
     gguf: Gguf,
 }
@@ -71,7 +73,12 @@ impl Planner {
             })?),
             None => None,
         };
-        if opts.backend == "openai" && openai.is_none() {
+        if let Some(f) = &opts.fallback
+            && !matches!(f.as_str(), "openai" | "gguf")
+        {
+            anyhow::bail!("--fallback / VLNAV_PLANNER_FALLBACK: unknown backend \"{f}\"; use openai or gguf");
+        }
+        if (opts.backend == "openai" || opts.fallback.as_deref() == Some("openai")) && openai.is_none() {
             anyhow::bail!("--backend openai needs --openai-url / VLNAV_PLANNER_OPENAI_URL");
         }
         let gguf_path = opts.gguf.clone().unwrap_or_else(|| GemmaChat::path(&opts.models_dir));
@@ -84,6 +91,7 @@ impl Planner {
             validator: Arc::new(Validator::new()),
             grounder,
             default_backend: opts.backend.clone(),
+            fallback: opts.fallback.clone(),
             openai,
             gguf,
         })
@@ -100,12 +108,19 @@ impl Planner {
             validator: Arc::new(Validator::new()),
             grounder,
             default_backend: "rules".into(),
+            fallback: None,
             openai,
             gguf: match gguf {
                 Some(g) => Gguf::Loaded(Box::new(g)),
                 None => Gguf::NotLoaded(gguf_path.to_path_buf()),
             },
         }
+    }
+
+    /// Asks `backend` (openai or gguf) where the rule parser would ask the user.
+    pub fn with_fallback(mut self, backend: Option<&str>) -> Planner {
+        self.fallback = backend.map(str::to_string);
+        self
     }
 
     pub fn validator(&self) -> Arc<Validator> {
@@ -150,16 +165,52 @@ impl Planner {
         let planned = match Self::model(&mut self.openai, &mut self.gguf, &backend)? {
             None => {
                 let parsed = htn::parse(instruction, &self.grounder);
-                Planned {
+                let planned = Planned {
                     outcome: parsed.outcome,
                     backend: "rules".into(),
                     notes: parsed.notes,
                     ungrounded: parsed.ungrounded,
+                };
+                match &self.fallback {
+                    Some(fallback) if matches!(planned.outcome, Outcome::Clarify(_)) => {
+                        let fallback = fallback.clone();
+                        self.ask_fallback(&fallback, instruction, planned)?
+                    }
+                    _ => planned,
                 }
             }
             Some(model) => llm::plan_with(model, instruction, &self.validator, &self.grounder),
         };
         Ok(self.final_check(planned))
+    }
+
+    /// The rules would ask; the fallback backend proposes a plan, used only
+    /// if it passes the validator and the provenance check.
+    fn ask_fallback(&mut self, fallback: &str, instruction: &str, mut asked: Planned) -> Result<Planned, PlanError> {
+        let Some(model) = Self::model(&mut self.openai, &mut self.gguf, fallback)? else {
+            return Ok(asked);
+        };
+        let name = model.name();
+        let question = match &asked.outcome {
+            Outcome::Clarify(c) => c.reason.clone(),
+            Outcome::Plan(_) => String::new(),
+        };
+        let proposal = llm::propose(model, instruction, &self.validator, &self.grounder);
+        match proposal.plan {
+            Ok(plan) => {
+                let mut notes = vec![format!(
+                    "the rule parser would ask ({question}); {name} proposed this plan, and every distance, angle \
+                     and target in it is in the instruction's words"
+                )];
+                notes.extend(proposal.notes);
+                Ok(Planned { outcome: Outcome::Plan(plan), backend: name.to_string(), notes, ungrounded: vec![] })
+            }
+            Err(errors) => {
+                asked.notes.extend(proposal.notes);
+                asked.notes.push(format!("{name} was asked as the fallback; no plan passed: {}", errors.join("; ")));
+                Ok(asked)
+            }
+        }
     }
 
     /// Revises the remaining plan after `failed_step` failed and the user answered.

@@ -10,6 +10,8 @@ use std::sync::Mutex;
 use vlnav_planner::gguf::GemmaChat;
 use vlnav_planner::llm;
 use vlnav_planner::plan::{Action, Outcome, Planned};
+use vlnav_planner::planner::Planner;
+use vlnav_planner::provenance;
 use vlnav_planner::validate::Validator;
 
 fn gemma() -> GemmaChat {
@@ -76,5 +78,29 @@ fn prompt_injection_cannot_leave_the_action_set() {
     assert_valid_or_fallback(&p);
     if let Outcome::Plan(plan) = &p.outcome {
         assert!(plan.steps.iter().all(|s| Action::ALL.contains(&s.action)));
+    }
+}
+
+#[test]
+fn as_the_fallback_the_model_only_answers_with_what_the_words_state() {
+    // The rules ask about "the far lamp" (no class); the model is asked as the
+    // fallback. Whatever it writes, a plan leaves only if every distance,
+    // angle and target in it is in the sentence; otherwise the question stands.
+    let path = GemmaChat::path(&common::models_dir());
+    let mut planner = Planner::from_parts(common::grounder(), None, Some(gemma()), &path).with_fallback(Some("gguf"));
+    let text = "go to the chair, then the far lamp";
+    let p = planner.plan(text, "").unwrap();
+    eprintln!("gguf fallback: backend {} notes {:?} outcome {:?}", p.backend, p.notes, p.outcome);
+    match &p.outcome {
+        Outcome::Plan(plan) => {
+            assert_eq!(p.backend, "gguf");
+            let checked = provenance::check(plan, text, &common::grounder()).unwrap();
+            assert!(checked.steps.iter().all(|s| !s.source.is_empty()));
+            assert!(plan.steps.iter().all(|s| s.action != Action::Move), "the sentence states no motion: {plan:?}");
+        }
+        Outcome::Clarify(_) => {
+            assert_eq!(p.backend, "rules");
+            assert!(p.notes.iter().any(|n| n.contains("was asked as the fallback")), "{:?}", p.notes);
+        }
     }
 }

@@ -233,6 +233,10 @@ proptest! {
         if let Err(e) = sources_are_quotes(&text, &plan) {
             prop_assert!(false, "{text:?}: {e}");
         }
+        // The check language models' plans must pass agrees with the rules.
+        if let Err(e) = vlnav_planner::provenance::check(&plan, &text, grounder()) {
+            prop_assert!(false, "{text:?}: the provenance check refuses the rules' plan {}: {e:?}", plan.to_json_string());
+        }
     }
 }
 
