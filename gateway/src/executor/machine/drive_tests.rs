@@ -1,0 +1,151 @@
+//! MOVE and the approach to a goal, scripted: progress, settling, asking when stuck.
+
+use std::f64::consts::FRAC_PI_6;
+
+use super::super::test_support::*;
+use super::super::*;
+
+#[test]
+fn a_move_starts_perceives_drives_and_completes_when_reached() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(2.0, 0.0)]);
+    let (cmd, asked) = cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.5, 2.0)));
+    let query = MoveQuery { anchor: Pose2::new(0.0, 0.0, 0.0), f_dist: 2.0, yaw: 0.0, d_s: 0.0 };
+    assert_eq!(
+        asked,
+        vec![
+            Request::StartStep {
+                index: 0,
+                action: Action::Move,
+                desc: "Move".into(),
+                move_goal: Some(query),
+                forget: true
+            },
+            Request::Perceive { detect: None },
+            Request::Drive { goal: goal_of(&query) },
+        ]
+    );
+    assert_eq!(cmd, Command { twist: Twist { linear: 0.5, angular: 0.0 }, active: true, finished: None });
+    assert!(matches!(events(&mut m)[..], [Event::StepStarted { index: 0, .. }]));
+
+    let (cmd, _) = cycle(&mut m, &p, at(4.0, 1.9, 0.0, 0.0), blind(|_| driven(DriveStatus::Reached, 0.0, 0.1)));
+    assert_eq!(cmd.twist, Twist::ZERO);
+    match &events(&mut m)[..] {
+        [Event::SubgoalReached { index: 0, error_m, .. }] => assert!((error_m - 0.1).abs() < 1e-9),
+        other => panic!("{other:?}"),
+    }
+    let (cmd, asked) = cycle(&mut m, &p, at(4.1, 1.9, 0.0, 0.0), blind(|_| unreachable!()));
+    assert!(asked.is_empty());
+    assert_eq!(cmd.finished, Some(Outcome::Succeeded));
+    assert!(!cmd.active);
+    match &events(&mut m)[..] {
+        [Event::Finished { outcome: Outcome::Succeeded, metrics, current_step: 1, .. }] => {
+            assert_eq!((metrics.steps_completed, metrics.steps_total, metrics.frames), (1, 1, 3));
+            assert!((metrics.duration_s - 4.1).abs() < 1e-9);
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_move_after_a_move_turns_from_that_moves_course_not_the_arrival_heading() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(10.0, 0.0), mv(2.0, FRAC_PI_6)]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 10.0)));
+    // The first leg ran along +x but the robot arrived swerved 0.58 rad to the right.
+    cycle(&mut m, &p, at(12.0, 9.8, 0.1, -0.58), blind(|_| driven(DriveStatus::Reached, 0.0, 0.2)));
+    let (_, asked) = cycle(&mut m, &p, at(12.1, 9.8, 0.1, -0.58), blind(|_| driven(DriveStatus::Moving, 1.0, 2.0)));
+    match &asked[0] {
+        Request::StartStep { move_goal: Some(q), .. } => {
+            assert_eq!((q.anchor.x, q.anchor.y, q.anchor.theta), (9.8, 0.1, 0.0));
+            assert_eq!(q.yaw, FRAC_PI_6);
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_drive_that_stops_converging_near_its_goal_settles_there() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(2.0, 0.0)]);
+    let mut t = 0.0;
+    // 0.4 m from a goal reached within 0.25 m: within the settle margin, but no closer for 3 s.
+    while t < p.settle_after_s {
+        cycle(&mut m, &p, at(t, 1.6, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.1, 0.4)));
+        assert!(!events(&mut m).iter().any(|e| matches!(e, Event::SubgoalReached { .. })), "settled early at {t}");
+        t += 0.5;
+    }
+    cycle(&mut m, &p, at(t, 1.6, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.1, 0.4)));
+    assert!(events(&mut m).iter().any(|e| matches!(e, Event::SubgoalReached { index: 0, .. })));
+}
+
+/// A confirmed chair (fused at (3.5, 0), its goal at (2, 0)) approached to
+/// `(x, y)`, where the local planner reports BLOCKED; the events after
+/// `seconds` of it.
+fn blocked_beside_the_goal(x: f64, y: f64, seconds: f64) -> (Mission, Vec<Event>) {
+    let p = ExecutorParams { confirm_frames: 3, confirm_window: 3, ..ExecutorParams::default() };
+    let mut m = mission(vec![find(56, "chair")]);
+    let goal = Pose2::new(2.0, 0.0, 0.0);
+    let to_goal = (x - goal.x).hypot(y - goal.y);
+    let mut sees = |r: &Request| -> Result<Reply, StageFailure> {
+        Ok(match r {
+            Request::StartStep { move_goal: None, .. } => Reply::StepStarted { goal: None },
+            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Locate { .. } => located(goal),
+            Request::Drive { .. } => driven(DriveStatus::Blocked, 0.0, to_goal),
+            other => panic!("unexpected {other:?}"),
+        })
+    };
+    for k in 0..3 {
+        cycle(&mut m, &p, at(f64::from(k) * 0.2, 0.0, 0.0, 0.0), &mut sees);
+    }
+    let mut t = 1.0;
+    while t <= 1.0 + seconds {
+        cycle(&mut m, &p, at(t, x, y, 0.0), &mut sees);
+        t += 0.2;
+    }
+    let events = events(&mut m);
+    (m, events)
+}
+
+#[test]
+fn a_drive_blocked_at_the_landmarks_stopping_distance_but_off_its_goal_settles_there() {
+    let p = ExecutorParams::default();
+    // 1.49 m from the chair, which the goal puts 1.5 m away, but 1.72 m
+    // from the goal (beyond a cable, say): the instruction holds here.
+    let (m, events) = blocked_beside_the_goal(3.0, 1.4, p.settle_after_s + 0.5);
+    assert!(!m.is_awaiting());
+    assert!(
+        events
+            .iter()
+            .any(|e| matches!(e, Event::SubgoalReached { index: 0, error_m, .. } if (error_m - 1.72).abs() < 0.01)),
+        "{events:?}"
+    );
+    // Not before the settle time (counted from the first drive, at 0.4 s).
+    let (_, events) = blocked_beside_the_goal(3.0, 1.4, p.settle_after_s - 1.2);
+    assert!(!events.iter().any(|e| matches!(e, Event::SubgoalReached { .. })), "{events:?}");
+    // Farther from the chair than the goal, blocked: it asks the way.
+    let (m, events) = blocked_beside_the_goal(0.5, 1.0, p.stuck_timeout_s + 0.5);
+    assert!(m.is_awaiting());
+    assert!(!events.iter().any(|e| matches!(e, Event::SubgoalReached { .. })), "{events:?}");
+}
+
+#[test]
+fn a_blocked_drive_asks_after_the_stuck_timeout() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    let mut t = 0.0;
+    while !m.is_awaiting() {
+        assert!(t <= p.stuck_timeout_s + 0.5, "still not asking at {t}");
+        cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Blocked, 0.0, 6.0)));
+        t += 0.5;
+    }
+    assert!(t > p.stuck_timeout_s);
+    match &events(&mut m)[..] {
+        [Event::StepStarted { .. }, Event::StepFailed { reason, .. }, Event::ClarificationNeeded { question, .. }] => {
+            assert_eq!(reason, "step 1: my way is blocked (6.0 m from the goal)");
+            assert!(question.question.starts_with("My way is blocked"));
+        }
+        other => panic!("{other:?}"),
+    }
+}

@@ -1,0 +1,256 @@
+//! The bounded exploration of a FIND whose target is not in view: a
+//! revisit of where an earlier step saw its class, look-arounds of scan
+//! turns, search legs, then a question to the user.
+
+use nalgebra::Vector3;
+use vlnav_geometry::wrap_angle as wrap;
+
+use super::{Mission, MoveQuery, Next, Pending, Request, bearing};
+use crate::config::ExecutorParams;
+use crate::executor::model::*;
+
+/// A search leg toward a lead closer than this (beyond the stopping
+/// distance) goes straight ahead instead, m.
+const LEAD_MIN_M: f64 = 0.5;
+
+/// Sensor seconds one scan turn of exploration may take before looking anyway.
+const SCAN_TURN_LIMIT_S: f64 = 4.0;
+/// A search leg slower than this on average ends early, m/s.
+const SEARCH_MIN_SPEED: f64 = 0.2;
+
+/// The next phase of a fruitless search, given where the last one ended.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ExplorePlan {
+    /// Turn once more (the scan turn number, 0-based) within the current look-around.
+    Turn(u32),
+    /// Drive one search leg (1-based leg number).
+    Search(u32),
+    /// Exploration is exhausted: ask the user.
+    Ask,
+}
+
+/// One search leg from `pose`: toward `lead` — where a sighting not yet
+/// confirmed put the target — to look again from closer (a detector finds a
+/// small, distant object in only a few frames; docs/perception.md), else
+/// straight ahead. Toward a lead it goes half the way to the stopping
+/// distance, at least `search_leg_m`, never past that distance; a lead
+/// already within reach is not worth another look from the same place.
+pub fn search_leg(pose: Pose2, lead: Option<&Vector3<f64>>, d_s: f64, p: &ExecutorParams) -> MoveQuery {
+    let ahead = MoveQuery { anchor: pose, f_dist: p.search_leg_m, yaw: 0.0, d_s: 0.0 };
+    let Some(t) = lead else { return ahead };
+    let room = (t.x - pose.x).hypot(t.y - pose.y) - d_s;
+    if room < LEAD_MIN_M {
+        return ahead;
+    }
+    let f_dist = (room / 2.0).max(p.search_leg_m).min(room);
+    MoveQuery { anchor: pose, f_dist, yaw: wrap(bearing(pose, t) - pose.theta), d_s: 0.0 }
+}
+
+/// Bounded exploration schedule: `scan_turns` turns per look-around, then a
+/// search leg, up to `search_legs` legs, each followed by a new look-around.
+pub fn after_look(turn: u32, leg: u32, p: &ExecutorParams) -> ExplorePlan {
+    if turn + 1 < p.scan_turns {
+        ExplorePlan::Turn(turn + 1)
+    } else if leg < p.search_legs {
+        ExplorePlan::Search(leg + 1)
+    } else {
+        ExplorePlan::Ask
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+pub(super) enum Explore {
+    Idle,
+    /// `since`: the stamp the turn or leg began.
+    /// `origin`: the pose the look-around began at; its turns are counted
+    /// from it, so each turn's tolerance does not shrink the look-around.
+    Turn {
+        goal: Goal,
+        turn: u32,
+        leg: u32,
+        since: f64,
+        origin: Pose2,
+    },
+    Look {
+        frames_left: u32,
+        turn: u32,
+        leg: u32,
+        origin: Pose2,
+    },
+    Search {
+        goal: Goal,
+        leg: u32,
+        since: f64,
+    },
+}
+
+#[derive(Clone, Copy, Debug)]
+pub(super) enum ExploreGoalFor {
+    /// The first turn of a look-around from `origin` after `leg` search legs;
+    /// `announce`: report the exploration's start when the goal is known.
+    Scan { leg: u32, origin: Pose2, announce: bool },
+    /// Turn `turn` of the look-around that began at `origin`.
+    NextTurn { turn: u32, leg: u32, origin: Pose2 },
+    /// Search leg number `leg`.
+    SearchLeg { leg: u32 },
+    /// The leg toward where an earlier step saw the target's class.
+    Revisit,
+}
+
+impl Mission {
+    /// Scan turn `turn` (0-based) of the look-around that began at `origin`.
+    fn turn_query(p: &ExecutorParams, origin: Pose2, turn: u32) -> MoveQuery {
+        MoveQuery { anchor: origin, f_dist: 0.0, yaw: wrap(p.scan_turn_rad * f64::from(turn + 1)), d_s: 0.0 }
+    }
+
+    /// The target is not in view and nothing is to be confirmed: the next
+    /// move of the bounded exploration.
+    pub(super) fn explore(&mut self, p: &ExecutorParams) -> Next {
+        let (pose, stamp) = (self.frame.pose, self.frame.stamp);
+        let index = self.index as u32;
+        let course = self.course;
+        let Some(f) = self.find_mut() else { return self.hold() };
+        let state = std::mem::replace(&mut f.explore, Explore::Idle);
+        match state {
+            Explore::Idle if f.revisit.is_some() => {
+                // An earlier step saw one where it is not seen from here (the
+                // landmark just reached may hide it): look again from closer
+                // before looking around. A place already within reach is
+                // looked for by the look-around instead.
+                let lead = f.revisit.take().map(|at| Vector3::new(at.x, at.y, 0.0));
+                let room = lead.as_ref().map_or(0.0, |t| (t.x - pose.x).hypot(t.y - pose.y) - f.d_s);
+                f.explore = Explore::Idle;
+                if room < LEAD_MIN_M {
+                    return self.explore(p);
+                }
+                let query = search_leg(pose, lead.as_ref(), f.d_s, p);
+                tracing::debug!(
+                    ?lead,
+                    f_dist = query.f_dist,
+                    yaw = query.yaw,
+                    "revisit leg toward a landmark an earlier step saw"
+                );
+                self.call(Pending::ExploreGoal(ExploreGoalFor::Revisit), Request::MoveGoal(query))
+            }
+            Explore::Idle => {
+                // Look first where the target was last seen (a person who
+                // walked out of view went that way); else, where the robot
+                // faces more than a scan turn off the route's course, along
+                // the course (a MOVE that went round a cable's end ended
+                // facing 73° off it, and the look-around, turning on from
+                // there, came to the chair off the route before the one on
+                // it: evaluation, lab); then on round from there.
+                let origin = match (f.predicted(stamp), course) {
+                    (Some(t), _) => Pose2::new(pose.x, pose.y, wrap(bearing(pose, &t) - p.scan_turn_rad)),
+                    (None, Some(c)) if wrap(c - pose.theta).abs() > p.scan_turn_rad => {
+                        Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad))
+                    }
+                    (None, _) => pose,
+                };
+                let what = ExploreGoalFor::Scan { leg: 0, origin, announce: true };
+                self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0)))
+            }
+            Explore::Turn { goal, .. } | Explore::Search { goal, .. } => {
+                self.call(Pending::ExploreDriven(state), Request::Drive { goal })
+            }
+            Explore::Look { frames_left, turn, leg, origin } if frames_left > 1 => {
+                f.explore = Explore::Look { frames_left: frames_left - 1, turn, leg, origin };
+                self.hold()
+            }
+            Explore::Look { turn, leg, origin, .. } => match after_look(turn, leg, p) {
+                ExplorePlan::Turn(t) => {
+                    let what = ExploreGoalFor::NextTurn { turn: t, leg, origin };
+                    self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, t)))
+                }
+                ExplorePlan::Search(l) => {
+                    let query = search_leg(pose, f.fused.as_ref(), f.d_s, p);
+                    tracing::debug!(leg = l, lead = ?f.fused, f_dist = query.f_dist, yaw = query.yaw, "search leg");
+                    self.call(Pending::ExploreGoal(ExploreGoalFor::SearchLeg { leg: l }), Request::MoveGoal(query))
+                }
+                ExplorePlan::Ask => {
+                    let who = if f.person.is_empty() {
+                        format!("the {}", f.target)
+                    } else {
+                        format!("{} ({})", f.person, f.target)
+                    };
+                    self.ask(
+                        format!(
+                            "step {}: {who} not found after looking all around and {} search leg(s)",
+                            index + 1,
+                            p.search_legs
+                        ),
+                        format!("I could not find {who}. Where should I look, or should I skip it?"),
+                    );
+                    self.hold()
+                }
+            },
+        }
+    }
+
+    pub(super) fn explore_goal(&mut self, what: ExploreGoalFor, goal: Goal) -> Next {
+        let stamp = self.frame.stamp;
+        let index = self.index as u32;
+        let next = match what {
+            ExploreGoalFor::Scan { leg, origin, announce } => {
+                if announce {
+                    self.emit(Event::Exploring { index, phase: ExplorePhase::Scan, attempt: 1 });
+                }
+                Explore::Turn { goal, turn: 0, leg, since: stamp, origin }
+            }
+            ExploreGoalFor::NextTurn { turn, leg, origin } => Explore::Turn { goal, turn, leg, since: stamp, origin },
+            ExploreGoalFor::SearchLeg { leg } => {
+                self.emit(Event::Exploring { index, phase: ExplorePhase::Search, attempt: leg });
+                Explore::Search { goal, leg, since: stamp }
+            }
+            // Counted as leg 0: the look-around and the search legs follow as usual.
+            ExploreGoalFor::Revisit => {
+                self.emit(Event::Exploring { index, phase: ExplorePhase::Revisit, attempt: 1 });
+                Explore::Search { goal, leg: 0, since: stamp }
+            }
+        };
+        if let Some(f) = self.find_mut() {
+            f.explore = next;
+        }
+        self.hold()
+    }
+
+    pub(super) fn explore_driven(&mut self, p: &ExecutorParams, state: Explore, answer: DriveAnswer) -> Next {
+        let (stamp, pose) = (self.frame.stamp, self.frame.pose);
+        let index = self.index as u32;
+        let (next, twist) = match state {
+            Explore::Turn { goal, turn, leg, since, origin } => {
+                // A scan turn that does not finish in time (a wheel stalled
+                // short of the heading), or that the local planner reports
+                // BLOCKED (no room to turn), looks from where it got to: a
+                // robot wedged beside a cable waited out every turn of two
+                // look-arounds and the mission ran out of time unasked.
+                let done = matches!(answer.status, DriveStatus::Reached | DriveStatus::Blocked);
+                if done || stamp - since >= SCAN_TURN_LIMIT_S {
+                    (Explore::Look { frames_left: p.look_frames, turn, leg, origin }, Twist::ZERO)
+                } else {
+                    (Explore::Turn { goal, turn, leg, since, origin }, answer.cmd)
+                }
+            }
+            Explore::Search { goal, leg, since } => {
+                let overdue = stamp - since >= p.search_leg_m / SEARCH_MIN_SPEED + SCAN_TURN_LIMIT_S;
+                let ended =
+                    matches!(answer.status, DriveStatus::Reached | DriveStatus::Blocked | DriveStatus::NoProgress);
+                if overdue || ended {
+                    self.emit(Event::Exploring { index, phase: ExplorePhase::Scan, attempt: leg + 1 });
+                    let what = ExploreGoalFor::Scan { leg, origin: pose, announce: false };
+                    return self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, pose, 0)));
+                }
+                (Explore::Search { goal, leg, since }, answer.cmd)
+            }
+            other => (other, Twist::ZERO),
+        };
+        if let Some(f) = self.find_mut() {
+            f.explore = next;
+        }
+        self.done(twist, None)
+    }
+}
+
+#[cfg(test)]
+#[path = "explore_tests.rs"]
+mod tests;

@@ -1,0 +1,164 @@
+//! The bounded exploration, scripted: look-arounds, search legs, the question.
+
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_6};
+
+use super::super::test_support::*;
+use super::*;
+
+#[test]
+fn an_unseen_target_is_searched_for_boundedly_then_asked_about() {
+    let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
+    let mut m = mission(vec![find(1, "bicycle")]);
+    let mut turns = Vec::new();
+    let mut frame = 0;
+    while !m.is_awaiting() {
+        assert!(frame < 200, "exploration is bounded");
+        let (cmd, asked) = cycle(
+            &mut m,
+            &p,
+            at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        assert_eq!(cmd.twist, Twist::ZERO);
+        turns.extend(asked.into_iter().filter_map(|r| match r {
+            Request::MoveGoal(q) => Some(q),
+            _ => None,
+        }));
+        frame += 1;
+    }
+    // Three turns of a look-around from where it began, a 2 m search leg, three more turns.
+    let turns_of_30: Vec<f64> = turns.iter().map(|q| q.yaw / FRAC_PI_6).collect();
+    for (got, want) in turns_of_30.iter().zip([1.0, 2.0, 3.0, 0.0, 1.0, 2.0, 3.0]) {
+        assert!((got - want).abs() < 1e-9, "{turns_of_30:?}");
+    }
+    assert_eq!(turns_of_30.len(), 7);
+    assert_eq!(turns[3].f_dist, p.search_leg_m);
+    let kinds: Vec<String> = events(&mut m)
+        .iter()
+        .filter_map(|e| match e {
+            Event::Exploring { phase, attempt, .. } => Some(format!("{phase:?} {attempt}")),
+            Event::StepFailed { reason, .. } => Some(reason.clone()),
+            Event::ClarificationNeeded { question, .. } => Some(question.question.clone()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(
+        kinds,
+        vec![
+            "Scan 1",
+            "Search 1",
+            "Scan 2",
+            "step 1: the bicycle not found after looking all around and 1 search leg(s)",
+            "I could not find the bicycle. Where should I look, or should I skip it?",
+        ]
+    );
+    // Waiting for the user: the robot idles and no stage is asked anything.
+    let (cmd, asked) = cycle(&mut m, &p, at(100.0, 0.0, 0.0, 0.0), blind(|_| unreachable!()));
+    assert!(asked.is_empty() && !cmd.active && cmd.twist == Twist::ZERO);
+}
+
+/// The first scan turn of a FIND for an unseen chair after a 3 m MOVE along
+/// +x that the robot ended facing `arrival` (rad): the look-around's origin
+/// and the first turn's heading.
+fn first_scan_after_a_move_arriving_at(arrival: f64) -> (Pose2, f64) {
+    let p = ExecutorParams { unseen_frames: 2, look_frames: 1, ..Default::default() };
+    let mut m = mission(vec![mv(3.0, 0.0), find(56, "chair")]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 3.0)));
+    cycle(&mut m, &p, at(5.0, 3.0, 0.0, arrival), blind(|_| driven(DriveStatus::Reached, 0.0, 0.02)));
+    for k in 0..50 {
+        let (_, asked) = cycle(
+            &mut m,
+            &p,
+            at(5.2 + 0.2 * f64::from(k), 3.0, 0.0, arrival),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        if let Some(q) = asked.iter().find_map(|r| match r {
+            Request::MoveGoal(q) => Some(*q),
+            _ => None,
+        }) {
+            return (q.anchor, wrap(q.anchor.theta + q.yaw));
+        }
+    }
+    panic!("no scan turn");
+}
+
+#[test]
+fn a_look_around_after_a_move_that_ended_facing_off_its_course_looks_along_the_course_first() {
+    // Round a cable's end the MOVE ended facing 73° left of its course:
+    // the first look after the view it arrived with is along the course,
+    // where the instruction's next landmark is (evaluation, lab).
+    let (origin, first) = first_scan_after_a_move_arriving_at(1.27);
+    assert!((origin.x, origin.y) == (3.0, 0.0), "{origin:?}");
+    assert!(first.abs() < 1e-9, "first turn to {first} rad");
+    // Within a scan turn of the course, the view it arrived with covered
+    // it: the look-around turns on from where the robot faces.
+    let (origin, first) = first_scan_after_a_move_arriving_at(0.3);
+    assert!((origin.theta - 0.3).abs() < 1e-9, "{origin:?}");
+    assert!((first - (0.3 + FRAC_PI_6)).abs() < 1e-9, "first turn to {first} rad");
+}
+
+#[test]
+fn a_scan_turn_with_no_room_to_turn_looks_at_once_and_the_search_ends_in_a_question() {
+    // Wedged: every drive answers BLOCKED. Each scan turn looks from where
+    // the robot stands at once rather than after the turn's time limit, so
+    // the exploration asks within seconds instead of waiting out every turn.
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![find(1, "bicycle")]);
+    let mut frame = 0u32;
+    while !m.is_awaiting() {
+        let stamp = f64::from(frame) * 0.2;
+        assert!(stamp < 40.0, "asked by {stamp} s");
+        cycle(&mut m, &p, at(stamp, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Blocked, 0.0, 1.0)));
+        frame += 1;
+    }
+    // 12 turns of 4 s each for three look-arounds would take 144 s.
+    assert!(f64::from(frame) * 0.2 < 40.0);
+}
+
+#[test]
+fn exploration_is_bounded_scan_then_search_then_ask() {
+    let p = ExecutorParams { scan_turns: 3, search_legs: 1, ..Default::default() };
+    assert_eq!(after_look(0, 0, &p), ExplorePlan::Turn(1));
+    assert_eq!(after_look(1, 0, &p), ExplorePlan::Turn(2));
+    assert_eq!(after_look(2, 0, &p), ExplorePlan::Search(1));
+    assert_eq!(after_look(0, 1, &p), ExplorePlan::Turn(1));
+    assert_eq!(after_look(2, 1, &p), ExplorePlan::Ask);
+}
+
+#[test]
+fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
+    // One glimpse of a chair 8 m away, 30° to the left, never confirmed:
+    // after the look-around the search leg goes toward it, half the way to
+    // the stopping distance; with no glimpse, straight ahead.
+    let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
+    let glimpse = Vector3::new(8.0 * FRAC_PI_6.cos(), 8.0 * FRAC_PI_6.sin(), 0.5);
+    let mut m = mission(vec![find(56, "chair")]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), tally(move |_| glimpse, 0, vec![chair(70.0, 95.0)]));
+    let mut legs = Vec::new();
+    let mut frame = 1;
+    while !m.is_awaiting() {
+        assert!(frame < 300, "exploration is bounded");
+        let (_, asked) = cycle(
+            &mut m,
+            &p,
+            at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        legs.extend(asked.into_iter().filter_map(|r| match r {
+            Request::MoveGoal(q) if q.f_dist > 0.0 => Some(q),
+            _ => None,
+        }));
+        frame += 1;
+    }
+    assert_eq!(legs.len(), 1, "{legs:?}");
+    assert!((legs[0].yaw - FRAC_PI_6).abs() < 1e-9, "{:?}", legs[0]);
+    assert!((legs[0].f_dist - (8.0 - p.default_d_s) / 2.0).abs() < 1e-9, "{:?}", legs[0]);
+
+    let pose = Pose2::new(1.0, 2.0, FRAC_PI_2);
+    assert_eq!(search_leg(pose, None, 1.5, &p), MoveQuery { anchor: pose, f_dist: p.search_leg_m, yaw: 0.0, d_s: 0.0 });
+    // A lead within reach: straight ahead; a near one: no farther than the stopping distance.
+    let near = Vector3::new(1.0, 3.8, 0.0);
+    assert_eq!(search_leg(pose, Some(&near), 1.5, &p).yaw, 0.0);
+    let q = search_leg(pose, Some(&Vector3::new(1.0, 5.0, 0.0)), 1.5, &p);
+    assert!((q.f_dist - 1.5).abs() < 1e-9 && q.yaw.abs() < 1e-9, "{q:?}");
+}
