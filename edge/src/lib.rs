@@ -13,10 +13,19 @@
 //! between two frames while a mission is submitted; [`run_episode`] collects
 //! the records of a run.
 
-pub mod agent;
 pub mod convert;
+pub mod link;
 pub mod ros1;
 pub mod safety;
+pub mod sim;
+
+/// The paths the link and the `sim` driver had before they were split into
+/// [`link`] and [`sim`]; kept so that callers of those paths keep building.
+pub mod agent {
+    pub use crate::link::{Link, SessionEnd, StatusReporter};
+    pub use crate::sim::run_sim;
+    pub use crate::spawn_estop_signals;
+}
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -237,6 +246,29 @@ impl EstopSwitch {
     }
 }
 
+/// Installs SIGUSR1 (engage) / SIGUSR2 (release) as e-stop buttons.
+pub fn spawn_estop_signals(estop: crate::EstopSwitch, shutdown: CancellationToken) {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        let (Ok(mut engage), Ok(mut release)) =
+            (signal(SignalKind::user_defined1()), signal(SignalKind::user_defined2()))
+        else {
+            tracing::warn!("cannot install SIGUSR1/SIGUSR2 e-stop handlers");
+            return;
+        };
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = shutdown.cancelled() => return,
+                    Some(()) = engage.recv() => { tracing::warn!("e-stop engaged (SIGUSR1)"); estop.engage(); }
+                    Some(()) = release.recv() => { tracing::warn!("e-stop released (SIGUSR2)"); estop.release(); }
+                }
+            }
+        });
+    }
+}
+
 /// What happened at one frame: sent up at `stamp`, answered (or not), applied.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepRecord {
@@ -319,7 +351,7 @@ pub async fn run_with(opts: EdgeOptions, shutdown: CancellationToken, hooks: Hoo
         hooks.estop.engage();
     }
     match opts.driver {
-        DriverKind::Sim => agent::run_sim(&opts, shutdown, hooks).await,
+        DriverKind::Sim => sim::run_sim(&opts, shutdown, hooks).await,
         DriverKind::Ros1 => ros1::run_ros1(&opts, shutdown, hooks).await,
     }
 }

@@ -23,7 +23,7 @@ async fn main() -> anyhow::Result<()> {
         trigger.cancel();
     });
     let hooks = vlnav_edge_agent::Hooks::default();
-    vlnav_edge_agent::agent::spawn_estop_signals(hooks.estop.clone(), shutdown.clone());
+    vlnav_edge_agent::spawn_estop_signals(hooks.estop.clone(), shutdown.clone());
     let result = vlnav_edge_agent::run_with(cli.edge, shutdown, hooks).await;
     telemetry.flush();
     result

@@ -18,8 +18,8 @@ use vlnav_proto::v1 as pb;
 use vlnav_runtime::CancellationToken;
 use vlnav_sim::{Pose2, Twist};
 
-use crate::agent::{LastCommand, Link, SessionEnd, StatusReporter};
 use crate::convert::{self, RobotDescription};
+use crate::link::{LastCommand, Link, SessionEnd, StatusReporter};
 use crate::safety::{Backoff, Governor, Limits, Verdict};
 use crate::{EdgeOptions, Hooks, StepRecord};
 

@@ -14,6 +14,8 @@ use tonic::transport::{Channel, Endpoint};
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
 use crate::security::{ClientSecurity, ClientTls};
+pub use crate::transport::{CONNECTION_WINDOW, STREAM_WINDOW};
+use crate::transport::{KEEPALIVE_INTERVAL, KEEPALIVE_TIMEOUT};
 
 /// Injects the current span's context into outgoing request metadata, and
 /// the caller's bearer token when it has one (docs/security.md).
@@ -58,10 +60,6 @@ impl Interceptor for InjectTraceContext {
     }
 }
 
-/// HTTP/2 flow-control windows sized for RGB-D frames, bytes.
-pub const STREAM_WINDOW: u32 = 16 * 1024 * 1024;
-pub const CONNECTION_WINDOW: u32 = 64 * 1024 * 1024;
-
 /// A channel whose every request carries the caller's trace context.
 pub type TracedChannel = InterceptedService<Channel, InjectTraceContext>;
 
@@ -83,8 +81,8 @@ fn endpoint(uri: &str, tls: Option<&ClientTls>, domain: Option<&str>) -> Result<
         .tcp_nodelay(true)
         // Pings find a vanished server (or a partition) within interval +
         // timeout, also between requests (docs/architecture.md, "Overload").
-        .http2_keep_alive_interval(crate::server::KEEPALIVE_INTERVAL)
-        .keep_alive_timeout(crate::server::KEEPALIVE_TIMEOUT)
+        .http2_keep_alive_interval(KEEPALIVE_INTERVAL)
+        .keep_alive_timeout(KEEPALIVE_TIMEOUT)
         .keep_alive_while_idle(true)
         // RGB-D frames are megabytes: h2's default 64 KiB windows would cost a
         // round trip per 64 KiB of every frame.

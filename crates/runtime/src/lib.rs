@@ -5,6 +5,8 @@
 //!   telemetry and graceful shutdown;
 //! - [`telemetry`]: tracing + OpenTelemetry (OTLP, W3C trace context);
 //! - [`client`]: channels whose requests carry the caller's trace context;
+//! - [`transport`]: the HTTP/2 keepalive and flow-control settings the
+//!   client and the server share;
 //! - [`security`]: TLS settings, certificate identities, bearer tokens and
 //!   the development PKI (docs/security.md);
 //! - [`actor`]: the request/reply helper every service actor uses;
@@ -20,6 +22,7 @@ pub mod security;
 pub mod server;
 pub mod telemetry;
 pub mod testing;
+pub mod transport;
 
 pub use server::{ServerConfig, ServiceSet, ports, serve, serve_main, shutdown_signal};
 pub use tokio_util::sync::CancellationToken;

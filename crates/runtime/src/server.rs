@@ -23,10 +23,8 @@ use tonic::transport::server::TcpIncoming;
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
-/// HTTP/2 pings on idle connections, both ends (`client.rs` uses the same).
-pub const KEEPALIVE_INTERVAL: Duration = Duration::from_secs(10);
-/// A ping unanswered this long closes the connection.
-pub const KEEPALIVE_TIMEOUT: Duration = Duration::from_secs(10);
+use crate::transport::{CONNECTION_WINDOW, STREAM_WINDOW};
+pub use crate::transport::{KEEPALIVE_INTERVAL, KEEPALIVE_TIMEOUT};
 
 /// Settings every server takes (flags or environment).
 #[derive(clap::Args, Clone, Debug)]
@@ -210,8 +208,8 @@ pub async fn serve(
         .http2_keepalive_interval(Some(KEEPALIVE_INTERVAL))
         .http2_keepalive_timeout(Some(KEEPALIVE_TIMEOUT))
         .tcp_nodelay(true)
-        .initial_stream_window_size(crate::client::STREAM_WINDOW)
-        .initial_connection_window_size(crate::client::CONNECTION_WINDOW)
+        .initial_stream_window_size(STREAM_WINDOW)
+        .initial_connection_window_size(CONNECTION_WINDOW)
         .layer(TelemetryLayer { stages: Arc::new(stages) })
         .add_routes(routes.routes())
         // The builder's tcp_nodelay applies only to listeners tonic binds

@@ -2,6 +2,7 @@
 //!
 //! - [`scenario`]: TOML scenario files, validated into a [`World`] (errors name the field);
 //! - [`robot`]: skid-steer kinematics, velocity/acceleration limits, wheel slip;
+//! - [`camera_config`]: the D455's intrinsics, mount and depth errors;
 //! - [`camera`]: the D455 model and an exact column ray caster for the 2.5-D
 //!   world — RGB, depth (u16 mm) and instance labels;
 //! - [`crowd`]: walking people (social force), who step aside for the robot;
@@ -11,6 +12,7 @@
 //! Pure Rust, no gRPC: the edge agent's `sim` driver wraps it.
 
 pub mod camera;
+pub mod camera_config;
 pub mod crowd;
 pub mod geometry;
 pub mod robot;

@@ -1,7 +1,7 @@
 //! The validated world: solids (extruded shapes), floor markings, moving
 //! pedestrians, and the instance table every rendered label refers to.
 
-use crate::camera::CameraConfig;
+use crate::camera_config::CameraConfig;
 use crate::geometry::{Pose2, Shape, Vec2};
 use crate::robot::SlipModel;
 
