@@ -498,6 +498,10 @@ async fn run_mission(
     // The frame that ran past the budget: a timed-out trial ends there, not
     // at whichever later frame the cancellation happened to land on.
     let mut time_cut = None;
+    // The frame that asked the user: a trial ends there. The frames the held
+    // robot sends until the cancellation lands depend on wall time, not on
+    // the trial, so counting them would make a run depend on machine load.
+    let mut asked_at = None;
     let mut agent_done = false;
     loop {
         tokio::select! {
@@ -529,6 +533,9 @@ async fn run_mission(
                             "the robot asked: {}",
                             c.clarification.map(|c| c.question).unwrap_or_default()
                         );
+                        if ev.stamp > 0.0 {
+                            asked_at = Some(ev.stamp);
+                        }
                         let _ = missions.cancel_mission(pb::CancelMissionRequest { mission_id: mission_id.clone() }).await;
                     }
                     Some(Kind::Finished(f)) => {
@@ -603,6 +610,9 @@ async fn run_mission(
     }
     let mut frames = mission_frames(after_submit, &mission_id, finished_stamp);
     if let Some(cut) = time_cut.filter(|_| watched.outcome == Some(Outcome::TimedOut)) {
+        frames.retain(|s| s.stamp <= cut + 1e-9);
+    }
+    if let Some(cut) = asked_at {
         frames.retain(|s| s.stamp <= cut + 1e-9);
     }
     Ok((watched, frames))
