@@ -7,6 +7,8 @@
 //! - [`client`]: channels whose requests carry the caller's trace context;
 //! - [`security`]: TLS settings, certificate identities, bearer tokens and
 //!   the development PKI (docs/security.md);
+//! - [`authz`]: which certificate identities may call which methods, as a
+//!   tower layer every server runs;
 //! - [`actor`]: the request/reply helper every service actor uses;
 //! - [`testing`]: a service set served on an ephemeral loopback port, for
 //!   integration tests;
@@ -14,6 +16,7 @@
 //!   detector and ReID backends draw from.
 
 pub mod actor;
+pub mod authz;
 pub mod client;
 pub mod perception;
 pub mod security;
@@ -21,5 +24,6 @@ pub mod server;
 pub mod telemetry;
 pub mod testing;
 
+pub use authz::CallerPolicy;
 pub use server::{ServerConfig, ServiceSet, ports, serve, serve_main, shutdown_signal};
 pub use tokio_util::sync::CancellationToken;
