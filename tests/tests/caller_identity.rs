@@ -196,10 +196,7 @@ async fn every_credential_gets_exactly_its_answer_from_every_method_of_every_ser
     let mut tally = BTreeMap::<(String, Expect), usize>::new();
     let mut methods = 0;
     for c in &creds {
-        let identity = match &c.cert {
-            Some((cert, key)) => Some((std::fs::read(cert).unwrap(), std::fs::read(key).unwrap())),
-            None => None,
-        };
+        let identity = c.cert.as_ref().map(|(cert, key)| (std::fs::read(cert).unwrap(), std::fs::read(key).unwrap()));
         let security = ClientSecurity::new(Some(ClientTls::new(ca.clone(), identity)), c.token.as_deref().map(&secret));
         methods = 0;
         for file in &fds.file {
