@@ -24,8 +24,6 @@ use tonic::transport::server::TcpIncoming;
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
-use crate::authz::{AuthzLayer, CallerPolicy};
-
 /// HTTP/2 pings on idle connections, both ends (`client.rs` uses the same).
 pub const KEEPALIVE_INTERVAL: Duration = Duration::from_secs(10);
 /// A ping unanswered this long closes the connection.
@@ -99,7 +97,7 @@ impl ServerConfig {
 pub struct ServiceSet {
     routes: RoutesBuilder,
     stages: HashMap<&'static str, &'static str>,
-    callers: CallerPolicy,
+    callers: crate::authz::CallerPolicy,
 }
 
 impl ServiceSet {
@@ -125,7 +123,7 @@ impl ServiceSet {
 
     /// The identities this server answers, method by method (checked on
     /// TLS connections; health and reflection stay open).
-    pub fn callers(mut self, policy: CallerPolicy) -> Self {
+    pub fn callers(mut self, policy: crate::authz::CallerPolicy) -> Self {
         self.callers = policy;
         self
     }
@@ -138,7 +136,7 @@ impl ServiceSet {
 /// Serves `services` on `listener` until `shutdown` is cancelled, then drains
 /// in-flight requests. Health reports SERVING for each service (and for the
 /// server as a whole, name "") until shutdown begins. On TLS every call is
-/// checked against the set's [`CallerPolicy`] ([`crate::authz`]).
+/// checked against the set's [`crate::authz::CallerPolicy`].
 pub async fn serve(
     cfg: &ServerConfig,
     listener: TcpListener,
@@ -237,7 +235,7 @@ pub async fn serve(
         .initial_connection_window_size(crate::client::CONNECTION_WINDOW)
         .layer(TelemetryLayer { stages: Arc::new(stages) })
         // Inside the telemetry layer, so a refusal is traced and counted.
-        .layer(AuthzLayer::new(callers))
+        .layer(crate::authz::AuthzLayer::new(callers))
         .add_routes(routes.routes())
         // The builder's tcp_nodelay applies only to listeners tonic binds
         // itself; accepted sockets of ours need it set here, or Nagle holds
@@ -266,7 +264,12 @@ pub fn check_exposure(addr: SocketAddr, tls: bool, insecure: bool) -> anyhow::Re
 
 /// Refuses to serve over TLS without asking callers for a certificate when
 /// the policy authorises callers by one: every call would be refused.
-pub fn check_callers(names: &[&str], callers: &CallerPolicy, tls: bool, client_ca: bool) -> anyhow::Result<()> {
+pub fn check_callers(
+    names: &[&str],
+    callers: &crate::authz::CallerPolicy,
+    tls: bool,
+    client_ca: bool,
+) -> anyhow::Result<()> {
     if tls && !client_ca && !names.is_empty() && callers.wants_certificates() {
         anyhow::bail!(
             "{} authorises callers by their certificate ({callers}), but without --tls-client-ca \
@@ -449,6 +452,7 @@ pub mod ports {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::authz::CallerPolicy;
 
     #[test]
     fn plaintext_is_refused_where_other_hosts_can_reach_it_unless_insecure_is_explicit() {
