@@ -100,8 +100,9 @@ impl Gateway {
     }
 
     /// MissionService and FleetService behind the token layer, ready for
-    /// `vlnav_runtime::serve`. When `server` verifies client certificates,
-    /// a robot attaches only with a certificate naming it.
+    /// `vlnav_runtime::serve`, with the certificates the gateway answers
+    /// ([`crate::auth::caller_policy`]). When `server` verifies client
+    /// certificates, a robot attaches only with a certificate naming it.
     pub fn services(&self, server: &ServerConfig) -> ServiceSet {
         let max = server.max_message_bytes;
         let me = Self { robot_certs: server.tls.tls_client_ca.is_some(), ..self.clone() };
@@ -118,6 +119,7 @@ impl Gateway {
                     FleetServiceServer::new(me.clone()).max_decoding_message_size(max).max_encoding_message_size(max),
                 ),
             )
+            .callers(crate::auth::caller_policy())
     }
 
     /// The mission `id`, if `caller` may see it.

@@ -8,6 +8,10 @@
 //! some robots and may expire. Health and reflection need nothing, so probes
 //! and `grpcurl list`/`describe` keep working. Robots attach with their
 //! certificate, not a token (checked by the Attach handler).
+//!
+//! Before tokens, [`caller_policy`] says which certificates the gateway
+//! answers (`vlnav_runtime::authz`): a robot's only on Attach, people's
+//! calls come without one.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -20,6 +24,7 @@ use serde::{Deserialize, Serialize};
 use tonic::Status;
 use tonic::body::Body;
 use tonic::server::NamedService;
+use vlnav_runtime::authz::{CallerPolicy, Callers, Methods};
 
 /// How often a request may look at the token file again.
 pub const RELOAD_EVERY: Duration = Duration::from_secs(1);
@@ -231,6 +236,26 @@ pub fn needs(path: &str) -> Needs {
         _ => Needs::Role(Role::Operator),
     }
 }
+
+/// Which certificates the gateway answers, checked before tokens on TLS
+/// (`vlnav_runtime::authz`). People call without a certificate and their
+/// token decides; a robot's certificate is good only for Attach, where the
+/// handler checks that it names the robot attaching (a certificate-less
+/// Attach reaches the handler too, which refuses it naming the identity it
+/// needs); services' certificates may call the rest with a token.
+pub fn caller_policy() -> CallerPolicy {
+    CallerPolicy::new()
+        .allow(
+            Methods::method("vlnav.v1.FleetService/Attach"),
+            [Callers::robots(), Callers::Uncertified],
+            "Attach answers only a robot's certificate (spiffe://vlnav/robot/<robot_id>), each robot as itself",
+        )
+        .allow(Methods::service("vlnav.v1.MissionService"), [Callers::Uncertified, Callers::services()], PEOPLE)
+        .allow(Methods::method("vlnav.v1.FleetService/ListRobots"), [Callers::Uncertified, Callers::services()], PEOPLE)
+}
+
+const PEOPLE: &str = "a robot's certificate is good only for FleetService/Attach; people call with a bearer token \
+                      and no certificate";
 
 /// Checks the bearer token of every request to the wrapped services.
 #[derive(Clone)]
@@ -467,5 +492,27 @@ mod tests {
         assert!(!std::fs::read_to_string(&file).unwrap().contains(&op), "the file holds hashes only");
         ensure_dev_tokens(dir.path()).unwrap();
         assert_eq!(vlnav_runtime::security::read_token(&dir.path().join("operator.token")).unwrap(), op);
+    }
+
+    #[test]
+    fn a_robot_certificate_is_good_only_for_attach_and_people_come_without_one() {
+        use vlnav_runtime::authz::Peer;
+        let p = caller_policy();
+        let robot = Peer::Certified(vec!["spiffe://vlnav/robot/husky-1".into()]);
+        let gateway = Peer::Certified(vec![vlnav_runtime::security::GATEWAY_IDENTITY.into()]);
+        const ATTACH: &str = "/vlnav.v1.FleetService/Attach";
+        assert!(p.check(ATTACH, &robot).is_ok());
+        assert!(p.check(ATTACH, &Peer::Uncertified).is_ok(), "the handler refuses it, naming the identity");
+        let e = p.check(ATTACH, &gateway).unwrap_err();
+        assert!(e.message().contains("Attach answers only a robot's certificate"), "{}", e.message());
+        for path in [SUBMIT, GET, "/vlnav.v1.MissionService/CancelMission", "/vlnav.v1.FleetService/ListRobots"] {
+            assert!(p.check(path, &Peer::Uncertified).is_ok(), "{path}: the token decides");
+            assert!(p.check(path, &gateway).is_ok(), "{path}: a service, then its token");
+            let e = p.check(path, &robot).unwrap_err();
+            assert_eq!(e.code(), tonic::Code::PermissionDenied);
+            assert!(e.message().starts_with(&format!("spiffe://vlnav/robot/husky-1 may not call {path}")), "{e:?}");
+        }
+        assert!(p.check("/vlnav.v1.FleetService/Detach", &Peer::Uncertified).is_err(), "unknown: refused");
+        assert!(p.check("/grpc.health.v1.Health/Check", &robot).is_ok());
     }
 }

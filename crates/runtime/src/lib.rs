@@ -9,6 +9,8 @@
 //!   client and the server share;
 //! - [`security`]: TLS settings, certificate identities, bearer tokens and
 //!   the development PKI (docs/security.md);
+//! - [`authz`]: which certificate identities may call which methods, as a
+//!   tower layer every server runs;
 //! - [`actor`]: the request/reply helper every service actor uses;
 //! - [`testing`]: a service set served on an ephemeral loopback port, for
 //!   integration tests;
@@ -16,6 +18,7 @@
 //!   detector and ReID backends draw from.
 
 pub mod actor;
+pub mod authz;
 pub mod client;
 pub mod perception;
 pub mod security;
@@ -24,5 +27,6 @@ pub mod telemetry;
 pub mod testing;
 pub mod transport;
 
+pub use authz::CallerPolicy;
 pub use server::{ServerConfig, ServiceSet, ports, serve, serve_main, shutdown_signal};
 pub use tokio_util::sync::CancellationToken;

@@ -15,10 +15,18 @@ use tonic::transport::{Certificate, ClientTlsConfig, Identity, ServerTlsConfig};
 pub const ROBOT_IDENTITY_PREFIX: &str = "spiffe://vlnav/robot/";
 /// URI SAN prefix of a service's certificate; the rest is its name.
 pub const SERVICE_IDENTITY_PREFIX: &str = "spiffe://vlnav/service/";
+/// The gateway's identity: the only caller the stages answer
+/// (`crate::authz::CallerPolicy::stages`).
+pub const GATEWAY_IDENTITY: &str = "spiffe://vlnav/service/gateway";
 
 /// The identity a robot's certificate must carry.
 pub fn robot_identity(robot_id: &str) -> String {
     format!("{ROBOT_IDENTITY_PREFIX}{robot_id}")
+}
+
+/// The identity a service's certificate carries.
+pub fn service_identity(name: &str) -> String {
+    format!("{SERVICE_IDENTITY_PREFIX}{name}")
 }
 
 /// Whether `id` can be a robot id: 1–64 letters, digits, '-', '_' or '.'
@@ -304,11 +312,11 @@ impl DevPki {
                 .collect::<Result<_, rcgen::Error>>()?;
             sans.push(rcgen::SanType::IpAddress(IpAddr::V4(Ipv4Addr::LOCALHOST)));
             sans.push(rcgen::SanType::IpAddress(IpAddr::V6(Ipv6Addr::LOCALHOST)));
-            sans.push(rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}server").try_into()?));
+            sans.push(rcgen::SanType::URI(service_identity("server").try_into()?));
             pki.issue("vlnav server", sans, &pki.server_cert(), &pki.server_key())?;
         }
         if !pki.gateway_cert().exists() {
-            let sans = vec![rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}gateway").try_into()?)];
+            let sans = vec![rcgen::SanType::URI(GATEWAY_IDENTITY.try_into()?)];
             pki.issue("vlnav gateway", sans, &pki.gateway_cert(), &pki.gateway_key())?;
         }
         for robot in robots {
@@ -383,7 +391,7 @@ impl DevPki {
             })
             .collect::<Result<_, rcgen::Error>>()
             .with_context(|| format!("{component}: a name in {dns_names:?} is not a valid DNS name"))?;
-        sans.push(rcgen::SanType::URI(format!("{SERVICE_IDENTITY_PREFIX}{component}").try_into()?));
+        sans.push(rcgen::SanType::URI(service_identity(component).try_into()?));
         self.issue(&format!("vlnav {component}"), sans, cert_path, key_path)
     }
 

@@ -1,8 +1,9 @@
 //! Server bootstrap shared by every vlnav service: one call serves a set of
 //! tonic services with health, reflection (v1 and v1alpha — grpcurl 1.8.6
 //! speaks only v1alpha), tonic's own request timeout (it answers
-//! DEADLINE_EXCEEDED instead of resetting the stream), a telemetry layer and
-//! graceful shutdown.
+//! DEADLINE_EXCEEDED instead of resetting the stream), a telemetry layer,
+//! authorisation of callers by their certificate's identity
+//! ([`crate::authz`]) and graceful shutdown.
 
 use std::collections::HashMap;
 use std::convert::Infallible;
@@ -87,11 +88,14 @@ impl ServerConfig {
 }
 
 /// The tonic services one server hosts, each with the pipeline stage its
-/// spans are named after ("plan", "detect", "local-plan", …).
+/// spans are named after ("plan", "detect", "local-plan", …), and who may
+/// call them ([`ServiceSet::callers`]; by default nobody but health and
+/// reflection over TLS).
 #[derive(Default)]
 pub struct ServiceSet {
     routes: RoutesBuilder,
     stages: HashMap<&'static str, &'static str>,
+    callers: crate::authz::CallerPolicy,
 }
 
 impl ServiceSet {
@@ -115,6 +119,13 @@ impl ServiceSet {
         self
     }
 
+    /// The identities this server answers, method by method (checked on
+    /// TLS connections; health and reflection stay open).
+    pub fn callers(mut self, policy: crate::authz::CallerPolicy) -> Self {
+        self.callers = policy;
+        self
+    }
+
     pub fn names(&self) -> impl Iterator<Item = &'static str> + '_ {
         self.stages.keys().copied()
     }
@@ -122,7 +133,8 @@ impl ServiceSet {
 
 /// Serves `services` on `listener` until `shutdown` is cancelled, then drains
 /// in-flight requests. Health reports SERVING for each service (and for the
-/// server as a whole, name "") until shutdown begins.
+/// server as a whole, name "") until shutdown begins. On TLS every call is
+/// checked against the set's [`crate::authz::CallerPolicy`].
 pub async fn serve(
     cfg: &ServerConfig,
     listener: TcpListener,
@@ -150,6 +162,7 @@ pub async fn serve(
     }
     health.set_service_status("", tonic_health::ServingStatus::Serving).await;
 
+    let callers = services.callers;
     let mut stages = services.stages;
     stages.insert("grpc.health.v1.Health", "health");
     stages.insert("grpc.reflection.v1.ServerReflection", "reflection");
@@ -160,7 +173,15 @@ pub async fn serve(
     let addr = listener.local_addr()?;
     let tls = cfg.tls.load(cfg.client_cert_optional)?;
     check_exposure(addr, tls.is_some(), cfg.insecure)?;
-    tracing::info!(%addr, services = ?names, tls = tls.is_some(), mutual_tls = cfg.tls.tls_client_ca.is_some(), "serving");
+    check_callers(&names, &callers, tls.is_some(), cfg.tls.tls_client_ca.is_some())?;
+    tracing::info!(
+        %addr,
+        services = ?names,
+        tls = tls.is_some(),
+        mutual_tls = cfg.tls.tls_client_ca.is_some(),
+        callers = %if tls.is_some() { callers.to_string() } else { "not checked (plaintext)".into() },
+        "serving"
+    );
     let drain = {
         let shutdown = shutdown.clone();
         let health = health.clone();
@@ -211,6 +232,8 @@ pub async fn serve(
         .initial_stream_window_size(STREAM_WINDOW)
         .initial_connection_window_size(CONNECTION_WINDOW)
         .layer(TelemetryLayer { stages: Arc::new(stages) })
+        // Inside the telemetry layer, so a refusal is traced and counted.
+        .layer(crate::authz::AuthzLayer::new(callers))
         .add_routes(routes.routes())
         // The builder's tcp_nodelay applies only to listeners tonic binds
         // itself; accepted sockets of ours need it set here, or Nagle holds
@@ -234,6 +257,24 @@ pub fn check_exposure(addr: SocketAddr, tls: bool, insecure: bool) -> anyhow::Re
         );
     }
     tracing::warn!(%addr, "INSECURE: plaintext gRPC on a non-loopback address; anyone who reaches it can call every method");
+    Ok(())
+}
+
+/// Refuses to serve over TLS without asking callers for a certificate when
+/// the policy authorises callers by one: every call would be refused.
+pub fn check_callers(
+    names: &[&str],
+    callers: &crate::authz::CallerPolicy,
+    tls: bool,
+    client_ca: bool,
+) -> anyhow::Result<()> {
+    if tls && !client_ca && !names.is_empty() && callers.wants_certificates() {
+        anyhow::bail!(
+            "{} authorises callers by their certificate ({callers}), but without --tls-client-ca \
+             (VLNAV_TLS_CLIENT_CA) no caller is asked for one: give the CA that signed the callers' certificates",
+            names.join(", ")
+        );
+    }
     Ok(())
 }
 
@@ -409,6 +450,7 @@ pub mod ports {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::authz::CallerPolicy;
 
     #[test]
     fn plaintext_is_refused_where_other_hosts_can_reach_it_unless_insecure_is_explicit() {
@@ -419,5 +461,17 @@ mod tests {
         assert!(check_exposure(open, true, false).is_ok());
         assert!(check_exposure(open, false, true).is_ok());
         assert!(check_exposure(lo, false, false).is_ok());
+    }
+
+    #[test]
+    fn tls_without_a_client_ca_is_refused_where_callers_are_authorised_by_certificate() {
+        let stages = CallerPolicy::stages();
+        let e = check_callers(&["vlnav.v1.PlannerService"], &stages, true, false).unwrap_err().to_string();
+        assert!(e.contains("--tls-client-ca") && e.contains("vlnav.v1.PlannerService"), "{e}");
+        assert!(check_callers(&["vlnav.v1.PlannerService"], &stages, true, true).is_ok());
+        assert!(check_callers(&["vlnav.v1.PlannerService"], &stages, false, false).is_ok(), "plaintext");
+        assert!(check_callers(&[], &CallerPolicy::new(), true, false).is_ok(), "nothing but health");
+        let people = CallerPolicy::new().allow(crate::authz::Methods::All, [crate::authz::Callers::Uncertified], "");
+        assert!(check_callers(&["vlnav.v1.MissionService"], &people, true, false).is_ok());
     }
 }

@@ -294,7 +294,7 @@ pub async fn services(
     let server_impl = vlnav_proto::v1::detector_service_server::DetectorServiceServer::new(svc)
         .max_decoding_message_size(server.max_message_bytes)
         .max_encoding_message_size(server.max_message_bytes);
-    Ok(vlnav_runtime::ServiceSet::new().add("detect", server_impl))
+    Ok(vlnav_runtime::ServiceSet::new().add("detect", server_impl).callers(vlnav_runtime::CallerPolicy::stages()))
 }
 
 #[cfg(test)]

@@ -158,7 +158,7 @@ pub async fn services(
     let svc = IngressServiceServer::new(api)
         .max_decoding_message_size(server.max_message_bytes)
         .max_encoding_message_size(server.max_message_bytes);
-    Ok(vlnav_runtime::ServiceSet::new().add("transcribe", svc))
+    Ok(vlnav_runtime::ServiceSet::new().add("transcribe", svc).callers(vlnav_runtime::CallerPolicy::stages()))
 }
 
 #[cfg(test)]

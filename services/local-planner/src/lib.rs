@@ -222,5 +222,5 @@ pub async fn services(
     let server_svc = LocalPlannerServiceServer::new(svc)
         .max_decoding_message_size(server.max_message_bytes)
         .max_encoding_message_size(server.max_message_bytes);
-    Ok(vlnav_runtime::ServiceSet::new().add("local-plan", server_svc))
+    Ok(vlnav_runtime::ServiceSet::new().add("local-plan", server_svc).callers(vlnav_runtime::CallerPolicy::stages()))
 }

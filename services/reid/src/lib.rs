@@ -146,5 +146,5 @@ pub async fn services(
     let svc = ReidServiceServer::new(grpc::ReidGrpc::new(actor, model))
         .max_decoding_message_size(server.max_message_bytes)
         .max_encoding_message_size(server.max_message_bytes);
-    Ok(vlnav_runtime::ServiceSet::new().add("reid", svc))
+    Ok(vlnav_runtime::ServiceSet::new().add("reid", svc).callers(vlnav_runtime::CallerPolicy::stages()))
 }

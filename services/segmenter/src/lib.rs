@@ -132,5 +132,5 @@ pub async fn services(
     let svc = SegmenterServiceServer::new(grpc::SegmenterGrpc::new(actor, name))
         .max_decoding_message_size(server.max_message_bytes)
         .max_encoding_message_size(server.max_message_bytes);
-    Ok(vlnav_runtime::ServiceSet::new().add("segment", svc))
+    Ok(vlnav_runtime::ServiceSet::new().add("segment", svc).callers(vlnav_runtime::CallerPolicy::stages()))
 }

@@ -169,5 +169,5 @@ pub async fn services(
     let server_svc = SubgoalServiceServer::new(svc)
         .max_decoding_message_size(server.max_message_bytes)
         .max_encoding_message_size(server.max_message_bytes);
-    Ok(vlnav_runtime::ServiceSet::new().add("subgoal", server_svc))
+    Ok(vlnav_runtime::ServiceSet::new().add("subgoal", server_svc).callers(vlnav_runtime::CallerPolicy::stages()))
 }

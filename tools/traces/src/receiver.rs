@@ -22,6 +22,8 @@ use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tonic::{Request, Response, Status};
 
+use vlnav_runtime::authz::{AuthzLayer, CallerPolicy, Callers, Methods};
+
 use crate::otlp::spans_from_export;
 use crate::store::{SpanStore, StoreError};
 
@@ -133,8 +135,20 @@ pub async fn serve_receiver(
     serve_receiver_with(listener, store, None, shutdown).await
 }
 
-/// [`serve_receiver`] over TLS when `tls` is given (with a client CA in it,
-/// only exporters holding a certificate from that CA may send).
+/// Who may export to the receiver over TLS: services
+/// (`spiffe://vlnav/service/*`; every process of `vlnav up` exports with the
+/// gateway's certificate), not robots nor certificates naming no service.
+pub fn exporter_policy() -> CallerPolicy {
+    CallerPolicy::new().allow(
+        Methods::All,
+        [Callers::services()],
+        "the trace receiver takes spans and metrics only from services (spiffe://vlnav/service/*)",
+    )
+}
+
+/// [`serve_receiver`] over TLS when `tls` is given. `tls` must carry a client
+/// CA: only exporters with a certificate from that CA naming a service
+/// ([`exporter_policy`]) may send; others get PERMISSION_DENIED.
 pub async fn serve_receiver_with(
     listener: TcpListener,
     store: Arc<SpanStore>,
@@ -150,6 +164,7 @@ pub async fn serve_receiver_with(
     }
     builder
         .tcp_nodelay(true)
+        .layer(AuthzLayer::new(exporter_policy()))
         .add_service(traces)
         .add_service(metrics)
         .serve_with_incoming_shutdown(

@@ -1,7 +1,7 @@
 //! The receiver against the real OpenTelemetry SDK and OTLP/gRPC exporter
 //! (the ones every vlnav process uses): spans exported by two "services"
 //! arrive over a real socket, land in per-trace files another process reads,
-//! and profile into a report.
+//! and profile into a report. Over mutual TLS, only services may export.
 
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
@@ -154,4 +154,50 @@ async fn profile_explains_what_is_missing() {
     };
     let err = run_profile(args).await.unwrap_err();
     assert!(err.to_string().contains(&format!("cannot reach the gateway at http://{addr}")), "{err}");
+}
+
+#[tokio::test]
+async fn over_mutual_tls_only_services_may_export() {
+    use opentelemetry_proto::tonic::collector::metrics::v1::ExportMetricsServiceRequest;
+    use opentelemetry_proto::tonic::collector::metrics::v1::metrics_service_client::MetricsServiceClient;
+    use opentelemetry_proto::tonic::collector::trace::v1::ExportTraceServiceRequest;
+    use opentelemetry_proto::tonic::collector::trace::v1::trace_service_client::TraceServiceClient;
+    use vlnav_runtime::security::{ClientSecurity, ClientTls, DevPki};
+
+    let dir = tempfile::tempdir().unwrap();
+    let pki = DevPki::ensure(&dir.path().join("pki"), &["husky-1"]).unwrap();
+    let store = Arc::new(SpanStore::open(dir.path().join("spans")).unwrap());
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let uri = format!("https://{}", listener.local_addr().unwrap());
+    let shutdown = CancellationToken::new();
+    let tls = pki.server_args().load(false).unwrap();
+    let server = tokio::spawn(vlnav_traces::serve_receiver_with(listener, store, tls, shutdown.clone()));
+
+    let read = |p: std::path::PathBuf| std::fs::read(p).unwrap();
+    let channel = |cert: std::path::PathBuf, key: std::path::PathBuf| {
+        let tls = ClientTls::new(read(pki.ca()), Some((read(cert), read(key))));
+        vlnav_runtime::client::channel_with(&uri, &ClientSecurity::new(Some(tls), None)).unwrap()
+    };
+    let gateway = channel(pki.gateway_cert(), pki.gateway_key());
+    TraceServiceClient::new(gateway.clone())
+        .export(ExportTraceServiceRequest::default())
+        .await
+        .expect("the gateway's certificate exports spans");
+    MetricsServiceClient::new(gateway).export(ExportMetricsServiceRequest::default()).await.expect("and metrics");
+
+    let robot = channel(pki.robot_cert("husky-1"), pki.robot_key("husky-1"));
+    let e = TraceServiceClient::new(robot.clone()).export(ExportTraceServiceRequest::default()).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
+    assert!(
+        e.message().starts_with(
+            "spiffe://vlnav/robot/husky-1 may not call /opentelemetry.proto.collector.trace.v1.TraceService/Export"
+        ),
+        "{}",
+        e.message()
+    );
+    let e = MetricsServiceClient::new(robot).export(ExportMetricsServiceRequest::default()).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::PermissionDenied, "{e:?}");
+
+    shutdown.cancel();
+    server.await.unwrap().unwrap();
 }
