@@ -158,7 +158,7 @@ pub const SYNONYMS: &[(&str, &str)] = &[
     ("kitty", "cat"),
     ("pony", "horse"),
     ("lamb", "sheep"),
-    // everyday names (issue 43): people
+    // everyday names: people
     ("children", "person"),
     ("baby", "person"),
     ("toddler", "person"),
