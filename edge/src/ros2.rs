@@ -303,7 +303,6 @@ pub struct Ros2Robot {
     cmd_vel: CmdVel,
     cmd_vel_topic: String,
     frame_id: String,
-    use_sim_time: bool,
     sensors: Arc<Mutex<Sensors>>,
     frames: mpsc::Receiver<RosFrame>,
     _node: Node,
@@ -458,7 +457,6 @@ impl Ros2Robot {
             cmd_vel,
             cmd_vel_topic,
             frame_id: "base_link".into(),
-            use_sim_time: opts.use_sim_time,
             sensors,
             frames,
             _node: node,
@@ -487,17 +485,9 @@ impl RosPlatform for Ros2Robot {
     }
 
     /// Publishes on `cmd_vel`, stamped (Jazzy) with sensor time: the robot's
-    /// clock, or the simulation's with `--use-sim-time`. Before the first
-    /// sensor message, the system clock (ROS 2's time without a simulation).
+    /// clock, or the simulation's with `--use-sim-time`; 0 before the first
+    /// sensor message (only zero velocities are published then).
     fn publish(&self, t: Twist, stamp: Option<f64>) {
-        let stamp = stamp.or_else(|| {
-            (!self.use_sim_time).then(|| {
-                std::time::SystemTime::now()
-                    .duration_since(std::time::UNIX_EPOCH)
-                    .map(|d| d.as_secs_f64())
-                    .unwrap_or(0.0)
-            })
-        });
         let twist = msg::Twist {
             linear: msg::Vector3 { x: t.linear, ..Default::default() },
             angular: msg::Vector3 { z: t.angular, ..Default::default() },

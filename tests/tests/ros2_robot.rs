@@ -45,6 +45,9 @@ const CONTROL_HZ: f64 = 20.0;
 const ESTOP_PERIOD_S: f64 = 0.1;
 /// DDS delivery and scheduling on a loaded 2-core machine.
 const TRANSPORT_SLACK_S: f64 = 0.15;
+/// A control tick that a loaded machine runs late (the stamps are taken when
+/// the tick runs).
+const TICK_SLACK_S: f64 = 1.0 / CONTROL_HZ;
 
 #[test]
 fn a_mission_drives_a_ros2_robot_and_its_estop_and_the_deadman_stop_it() {
@@ -197,9 +200,12 @@ async fn inside_the_namespace() {
     assert!(models.join("minilm").exists(), "models are missing in {}: run deploy/fetch-models.sh", models.display());
 
     // 1. The stack, without a robot. A fresh network namespace has every port free.
+    //    Realistic perception: its colour segmenter reads a real camera's frames (the
+    //    oracle's needs the simulator's label images; the simulated detector, lacking
+    //    them too, is skipped and the robot drives without person boxes).
     let gateway_addr = "127.0.0.1:50051";
     let mut up = Command::new(bin.join("vlnav"));
-    up.args(["up", "--no-robot", "--robot-id", ROBOT, "--perception", "oracle", "--listen", gateway_addr])
+    up.args(["up", "--no-robot", "--robot-id", ROBOT, "--perception", "realistic", "--listen", gateway_addr])
         .arg("--data-dir")
         .arg(data.path())
         .env("VLNAV_MODELS_DIR", &models)
@@ -285,7 +291,7 @@ async fn inside_the_namespace() {
     .await;
 
     // 5. A mission drives it.
-    let mission = missions.submit_mission(submit("move 5 m ahead")).await.expect("SubmitMission").into_inner();
+    let mission = missions.submit_mission(submit("move 8 m ahead")).await.expect("SubmitMission").into_inner();
     wait_for("the robot driven 0.5 m by the mission", Duration::from_secs(90), async || {
         (log.odom_x() > 0.5).then_some(())
     })
@@ -339,11 +345,13 @@ async fn inside_the_namespace() {
     assert!(before.last().is_some_and(|c| c.moves()), "the robot was moving when the gateway froze");
     let last_moving = cmds.iter().rposition(|c| c.moves()).expect("the robot moved");
     let first_zero = *cmds.get(last_moving + 1).expect("a zero command after the last motion");
-    let bound = DEADMAN_S + 1.0 / CONTROL_HZ;
+    // The last command answered a frame stamped before the freeze.
+    let bound = DEADMAN_S + 1.0 / CONTROL_HZ + TICK_SLACK_S;
     eprintln!(
-        "ros2 deadman: zero cmd_vel stamped {:.3} s after the gateway froze (received {:.3} s after; bound {bound:.2} s)",
+        "ros2 deadman: zero cmd_vel stamped {:.3} s after the gateway froze (received {:.3} s after; deadman {DEADMAN_S} s + one {:.2} s cycle)",
         first_zero.stamp - frozen,
-        first_zero.recv - frozen
+        first_zero.recv - frozen,
+        1.0 / CONTROL_HZ
     );
     assert!(first_zero.stamp - frozen <= bound, "zero stamped {:.3} s after the freeze", first_zero.stamp - frozen);
     assert!(
