@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
-use vlnav::credentials::{K8S_COMPONENTS, K8sCredentialsArgs, dns_names, tls_secret_name};
+use vlnav::credentials::{dns_names, tls_secret_name, K8sCredentialsArgs, K8S_COMPONENTS};
 use vlnav_runtime::ports;
 
 /// The Kubernetes version the manifests are validated against: the oldest
@@ -586,6 +586,7 @@ async fn generated_credentials_apply_and_verify_under_the_service_names() {
         tls_cert: Some(creds.join("planner.pem")),
         tls_key: Some(creds.join("planner-key.pem")),
         tls_client_ca: Some(out.join("ca.pem")),
+        ..Default::default()
     };
     let health_port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
     let cfg = vlnav_runtime::ServerConfig { tls: server_tls, health_listen: Some(health_port), ..Default::default() };

@@ -27,12 +27,12 @@ use std::fmt;
 use std::sync::Arc;
 use std::task::{Context, Poll};
 
-use futures::future::{Either, Ready, ready};
-use tonic::Status;
+use futures::future::{ready, Either, Ready};
 use tonic::body::Body;
 use tonic::transport::server::{TcpConnectInfo, TlsConnectInfo};
+use tonic::Status;
 
-use crate::security::{GATEWAY_IDENTITY, ROBOT_IDENTITY_PREFIX, SERVICE_IDENTITY_PREFIX, uri_sans};
+use crate::security::{uri_sans, GATEWAY_IDENTITY, ROBOT_IDENTITY_PREFIX, SERVICE_IDENTITY_PREFIX};
 
 /// Services every caller may use, whatever the policy.
 pub const OPEN_SERVICES: &[&str] =
@@ -310,7 +310,7 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::security::{DevPki, pem_to_der, robot_identity};
+    use crate::security::{pem_to_der, robot_identity, DevPki};
 
     fn certified(ids: &[&str]) -> Peer {
         Peer::Certified(ids.iter().map(|s| s.to_string()).collect())

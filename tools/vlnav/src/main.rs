@@ -4,9 +4,9 @@ use std::net::SocketAddr;
 
 use clap::{Parser, Subcommand};
 use tokio::net::TcpListener;
-use vlnav::mission::{MissionArgs, run_mission};
-use vlnav::up::{UpArgs, up};
-use vlnav_runtime::{CancellationToken, ports, telemetry};
+use vlnav::mission::{run_mission, MissionArgs};
+use vlnav::up::{up, UpArgs};
+use vlnav_runtime::{ports, telemetry, CancellationToken};
 
 use vlnav::CASE_2;
 
@@ -15,6 +15,10 @@ enum CredentialsCmd {
     /// Certificates (one CA, one per component, one per robot) and tokens
     /// for k8s/base, as Secrets in a kustomization (docs/security.md).
     K8s(vlnav::credentials::K8sCredentialsArgs),
+    /// Revoke a robot, a component or one certificate: writes
+    /// <dir>/revoked.toml, which servers read again within a second
+    /// (docs/security.md).
+    Revoke(vlnav::credentials::RevokeArgs),
 }
 
 #[derive(Subcommand)]
@@ -51,8 +55,9 @@ enum Cmd {
     /// Generated worlds: `vlnav worlds generate --family hall --count 20 --seed 0 --out DIR`.
     #[command(subcommand)]
     Worlds(WorldsCmd),
-    /// Issue credentials: `vlnav credentials k8s` writes the Secrets of a
-    /// Kubernetes deployment (certificates for every component, tokens).
+    /// Issue and revoke credentials: `vlnav credentials k8s` writes the
+    /// Secrets of a Kubernetes deployment (certificates for every component,
+    /// tokens); `vlnav credentials revoke` refuses a robot or component.
     #[command(subcommand)]
     Credentials(CredentialsCmd),
     /// Feed a mission recording's frames through a fresh gateway and stages
@@ -230,6 +235,10 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             eprintln!("{}", vlnav::credentials::next_steps(&args, &dir));
             Ok(())
         }
+        Cmd::Credentials(CredentialsCmd::Revoke(args)) => {
+            eprintln!("{}", vlnav::credentials::revoke(&args)?);
+            Ok(())
+        }
         Cmd::Replay(args) => {
             let report = vlnav::replay::replay(&args).await?;
             if args.json {
@@ -289,7 +298,7 @@ async fn wait_for_robot(
     security: &vlnav_runtime::security::ClientSecurity,
     robot_id: &str,
 ) -> anyhow::Result<()> {
-    use vlnav_proto::v1::{ListRobotsRequest, fleet_service_client::FleetServiceClient};
+    use vlnav_proto::v1::{fleet_service_client::FleetServiceClient, ListRobotsRequest};
     let mut client = FleetServiceClient::new(vlnav_runtime::client::channel_with(gateway, security)?);
     for _ in 0..300 {
         let robots = client.list_robots(ListRobotsRequest {}).await?.into_inner().robots;
