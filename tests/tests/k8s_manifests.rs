@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
-use vlnav::credentials::{dns_names, tls_secret_name, K8sCredentialsArgs, K8S_COMPONENTS};
+use vlnav::credentials::{K8S_COMPONENTS, K8sCredentialsArgs, dns_names, tls_secret_name};
 use vlnav_runtime::ports;
 
 /// The Kubernetes version the manifests are validated against: the oldest

@@ -9,13 +9,13 @@
 use std::time::Duration;
 
 use tokio::time::Instant;
-use vlnav::credentials::{revoke, RevokeArgs};
+use vlnav::credentials::{RevokeArgs, revoke};
 use vlnav_e2e::robot::SimRobot;
-use vlnav_e2e::{stops, TestStack};
-use vlnav_edge_agent::agent::Link;
+use vlnav_e2e::{TestStack, stops};
 use vlnav_edge_agent::EdgeOptions;
+use vlnav_edge_agent::agent::Link;
 use vlnav_proto::v1::{
-    submit_mission_request::Instruction, EdgeHello, ListRobotsRequest, RobotInfo, SubmitMissionRequest,
+    EdgeHello, ListRobotsRequest, RobotInfo, SubmitMissionRequest, submit_mission_request::Instruction,
 };
 
 fn hello(robot: &str) -> EdgeHello {

@@ -27,12 +27,12 @@ use std::fmt;
 use std::sync::Arc;
 use std::task::{Context, Poll};
 
-use futures::future::{ready, Either, Ready};
+use futures::future::{Either, Ready, ready};
+use tonic::Status;
 use tonic::body::Body;
 use tonic::transport::server::{TcpConnectInfo, TlsConnectInfo};
-use tonic::Status;
 
-use crate::security::{uri_sans, GATEWAY_IDENTITY, ROBOT_IDENTITY_PREFIX, SERVICE_IDENTITY_PREFIX};
+use crate::security::{GATEWAY_IDENTITY, ROBOT_IDENTITY_PREFIX, SERVICE_IDENTITY_PREFIX, uri_sans};
 
 /// Services every caller may use, whatever the policy.
 pub const OPEN_SERVICES: &[&str] =
@@ -310,7 +310,7 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::security::{pem_to_der, robot_identity, DevPki};
+    use crate::security::{DevPki, pem_to_der, robot_identity};
 
     fn certified(ids: &[&str]) -> Peer {
         Peer::Certified(ids.iter().map(|s| s.to_string()).collect())

@@ -34,5 +34,5 @@ pub mod tls;
 pub mod transport;
 
 pub use authz::CallerPolicy;
-pub use server::{ports, serve, serve_main, shutdown_signal, ServerConfig, ServiceSet};
+pub use server::{ServerConfig, ServiceSet, ports, serve, serve_main, shutdown_signal};
 pub use tokio_util::sync::CancellationToken;

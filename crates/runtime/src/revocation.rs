@@ -35,9 +35,9 @@ use bytes::Bytes;
 use futures::future::BoxFuture;
 use http_body::Frame;
 use tokio::sync::watch;
+use tonic::Status;
 use tonic::body::Body;
 use tonic::transport::server::{TcpConnectInfo, TlsConnectInfo};
-use tonic::Status;
 
 use crate::authz::spiffe_ids;
 

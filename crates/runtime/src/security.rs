@@ -72,7 +72,9 @@ impl ServerTlsArgs {
                 anyhow::bail!("--tls-client-ca needs --tls-cert and --tls-key: mutual TLS is TLS first")
             }
             (None, None) if self.tls_revoked.is_some() => {
-                anyhow::bail!("--tls-revoked needs --tls-cert, --tls-key and --tls-client-ca: revocation is of client certificates")
+                anyhow::bail!(
+                    "--tls-revoked needs --tls-cert, --tls-key and --tls-client-ca: revocation is of client certificates"
+                )
             }
             (None, None) => return Ok(None),
             (Some(c), Some(k)) => (c, k),

@@ -13,8 +13,8 @@ use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
 
 use futures::future::BoxFuture;
-use opentelemetry::propagation::Extractor;
 use opentelemetry::KeyValue;
+use opentelemetry::propagation::Extractor;
 use tokio::net::TcpListener;
 use tokio_util::sync::CancellationToken;
 use tonic::body::Body;

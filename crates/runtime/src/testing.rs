@@ -21,7 +21,7 @@ use tokio_util::sync::CancellationToken;
 use tonic::transport::{Channel, Endpoint};
 
 use crate::client::TracedChannel;
-use crate::server::{serve, ServerConfig, ServiceSet};
+use crate::server::{ServerConfig, ServiceSet, serve};
 
 /// A server running on `127.0.0.1:<ephemeral port>`. Dropping it begins the
 /// graceful shutdown without waiting for it; [`TestServer::stop`] waits and
@@ -116,9 +116,9 @@ impl Drop for TestServer {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use tonic_health::pb::HealthCheckRequest;
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::health_client::HealthClient;
-    use tonic_health::pb::HealthCheckRequest;
 
     #[tokio::test]
     async fn serves_on_a_loopback_port_until_stopped() {

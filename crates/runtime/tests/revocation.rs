@@ -19,13 +19,13 @@ use tonic_reflection::pb::v1::{ServerReflectionRequest, ServerReflectionResponse
 use vlnav_proto::v1::detector_service_client::DetectorServiceClient;
 use vlnav_proto::v1::detector_service_server::{DetectorService, DetectorServiceServer};
 use vlnav_proto::v1::{DetectRequest, DetectResponse, GetModelInfoRequest, ModelInfo};
-use vlnav_runtime::client::{channel_with, TracedChannel};
-use vlnav_runtime::revocation::{CertificateId, RevocationList, Revoked};
-use vlnav_runtime::security::{robot_identity, ClientSecurity, ClientTls, DevPki};
-use vlnav_runtime::server::{ServerConfig, ServiceSet};
-use vlnav_runtime::testing::{start, TestServer};
-use vlnav_runtime::tls::{ServerTls, RELOAD_INTERVAL};
 use vlnav_runtime::CallerPolicy;
+use vlnav_runtime::client::{TracedChannel, channel_with};
+use vlnav_runtime::revocation::{CertificateId, RevocationList, Revoked};
+use vlnav_runtime::security::{ClientSecurity, ClientTls, DevPki, robot_identity};
+use vlnav_runtime::server::{ServerConfig, ServiceSet};
+use vlnav_runtime::testing::{TestServer, start};
+use vlnav_runtime::tls::{RELOAD_INTERVAL, ServerTls};
 
 #[derive(Clone)]
 struct Stub;
@@ -257,8 +257,10 @@ async fn a_renewed_server_certificate_is_presented_to_new_connections_while_stre
 async fn presented(
     connector: &vlnav_runtime::tls::ClientConnector,
     port: u16,
-    accepted: &mut (impl tokio_stream::Stream<Item = std::io::Result<tokio_rustls::server::TlsStream<tokio::net::TcpStream>>>
-              + Unpin),
+    accepted: &mut (
+             impl tokio_stream::Stream<Item = std::io::Result<tokio_rustls::server::TlsStream<tokio::net::TcpStream>>>
+             + Unpin
+         ),
 ) -> String {
     let (client, server) = tokio::join!(connector.connect("127.0.0.1", port), accepted.next());
     client.unwrap();

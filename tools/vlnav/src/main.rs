@@ -4,9 +4,9 @@ use std::net::SocketAddr;
 
 use clap::{Parser, Subcommand};
 use tokio::net::TcpListener;
-use vlnav::mission::{run_mission, MissionArgs};
-use vlnav::up::{up, UpArgs};
-use vlnav_runtime::{ports, telemetry, CancellationToken};
+use vlnav::mission::{MissionArgs, run_mission};
+use vlnav::up::{UpArgs, up};
+use vlnav_runtime::{CancellationToken, ports, telemetry};
 
 use vlnav::CASE_2;
 
@@ -298,7 +298,7 @@ async fn wait_for_robot(
     security: &vlnav_runtime::security::ClientSecurity,
     robot_id: &str,
 ) -> anyhow::Result<()> {
-    use vlnav_proto::v1::{fleet_service_client::FleetServiceClient, ListRobotsRequest};
+    use vlnav_proto::v1::{ListRobotsRequest, fleet_service_client::FleetServiceClient};
     let mut client = FleetServiceClient::new(vlnav_runtime::client::channel_with(gateway, security)?);
     for _ in 0..300 {
         let robots = client.list_robots(ListRobotsRequest {}).await?.into_inner().robots;
