@@ -2,11 +2,13 @@
 //! agents attach to, and one mission-executor actor per robot that runs a
 //! validated plan step by step through the pipeline services.
 //!
-//! - [`frames`]: pure checks of what edge agents send (sizes, finiteness, time order);
+//! - [`frames`]: pure checks of what edge agents send (sizes, finiteness, time order),
+//!   and the checked frame the rest of the gateway takes;
 //! - [`executor`]: the step state machine (MOVE, FIND, FOLLOW, RETURN, exploration,
 //!   clarification) driven by sensor frames and their timestamps;
 //! - [`pipeline`]: the gRPC clients of the stage services;
 //! - [`hub`]: mission records, event logs and watchers, persisted in [`store`];
+//! - `link`: a robot's inbound stream, where each frame is checked once;
 //! - [`robot`]: the per-robot actor that owns the attach stream and the executor;
 //! - [`auth`]: bearer tokens, roles and the tower layer that checks them;
 //! - [`limit`]: the per-caller rate limit of mission submissions;
@@ -20,6 +22,7 @@ pub mod executor;
 pub mod frames;
 pub mod hub;
 pub mod limit;
+mod link;
 pub mod pipeline;
 pub mod robot;
 pub mod store;

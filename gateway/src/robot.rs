@@ -9,13 +9,14 @@ use tokio::sync::{mpsc, oneshot};
 use tonic::Status;
 use tracing::Instrument;
 use vlnav_proto::v1::{
-    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, MissionAnnouncement, OdometryUpdate, RobotInfo,
-    SensorFrame, Twist2D, VelocityCommand, gateway_command,
+    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, MissionAnnouncement, MissionEvent,
+    OdometryUpdate, RobotInfo, Twist2D, VelocityCommand, gateway_command,
 };
 use vlnav_runtime::actor::Mailbox;
 
 use crate::config::ExecutorParams;
-use crate::executor::{Ctx, MissionRun, Seen};
+use crate::executor::{Ctx, EventSink, MissionRun, Seen};
+use crate::frames::CheckedFrame;
 use crate::hub::Hub;
 use crate::pipeline::Pipeline;
 use crate::viz::{FrameView, MissionView, Viz};
@@ -31,7 +32,7 @@ pub enum RobotMsg {
     },
     Frame {
         conn: u64,
-        frame: Box<SensorFrame>,
+        frame: Box<CheckedFrame>,
     },
     Odometry {
         conn: u64,
@@ -91,7 +92,7 @@ impl Fleet {
     }
 
     fn ctx(&self) -> Ctx<'_> {
-        Ctx { pipeline: &self.pipeline, params: &self.params, hub: &self.hub, viz: &self.viz }
+        Ctx { pipeline: &self.pipeline, params: &self.params, hub: &self.hub, events: &self.viz }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, RobotEntry>> {
@@ -219,13 +220,24 @@ impl Fleet {
     }
 }
 
+/// The executor's events go to the live view and the recordings.
+impl EventSink for Viz {
+    fn wants_events(&self) -> bool {
+        self.is_on()
+    }
+
+    fn event(&self, robot_id: &str, event: MissionEvent) {
+        Viz::event(self, robot_id, event);
+    }
+}
+
 /// Takes what is already queued behind a frame: the newest frame of each
 /// connection wins, every other message is kept in order. Returns the frame
 /// to act on, the other messages (handled first) and how many frames were
 /// passed over.
 fn newest_frame(
     conn: u64,
-    frame: Box<SensorFrame>,
+    frame: Box<CheckedFrame>,
     rx: &mut mpsc::Receiver<RobotMsg>,
 ) -> (RobotMsg, Vec<RobotMsg>, u64) {
     let mut newest = RobotMsg::Frame { conn, frame };
@@ -426,8 +438,8 @@ impl RobotActor {
         self.conn.as_ref().is_some_and(|(c, _)| *c == conn)
     }
 
-    async fn on_frame(&mut self, frame: SensorFrame) {
-        let Some(f) = frame.frame.as_ref() else { return };
+    async fn on_frame(&mut self, frame: CheckedFrame) {
+        let f = frame.frame();
         let stamp = f.stamp;
         self.last_stamp = Some(stamp);
         self.update(|i| {
@@ -508,7 +520,10 @@ impl RobotActor {
             let lockstep = self.lockstep();
             fleet
                 .viz
-                .frame(FrameView { robot_id: self.robot_id.clone(), frame, command, mission, seen }, lockstep)
+                .frame(
+                    FrameView { robot_id: self.robot_id.clone(), frame: frame.into_sensor(), command, mission, seen },
+                    lockstep,
+                )
                 .await;
             if finished && let Some(id) = mission_id {
                 fleet.viz.end_mission(&self.robot_id, &id);
@@ -520,16 +535,16 @@ impl RobotActor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use vlnav_proto::v1::RgbdFrame;
 
     fn frame(conn: u64, seq: u64) -> RobotMsg {
-        let f = SensorFrame { frame: Some(RgbdFrame { seq, ..Default::default() }), truth: None };
+        let f = vlnav_proto::v1::RgbdFrame { seq, ..crate::frames::tests::frame(8, 6) };
+        let f = CheckedFrame::check(vlnav_proto::v1::SensorFrame { frame: Some(f), truth: None }, None).unwrap();
         RobotMsg::Frame { conn, frame: Box::new(f) }
     }
 
     fn seq(msg: &RobotMsg) -> Option<(u64, u64)> {
         match msg {
-            RobotMsg::Frame { conn, frame } => Some((*conn, frame.frame.as_ref().unwrap().seq)),
+            RobotMsg::Frame { conn, frame } => Some((*conn, frame.frame().seq)),
             _ => None,
         }
     }

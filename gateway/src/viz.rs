@@ -28,6 +28,7 @@ use foxglove::{Channel, Context, McapWriterHandle, PartialMetadata, RawChannel, 
 use prost::Message;
 use vlnav_proto::v1 as pb;
 
+use crate::config::ViewOptions;
 use crate::executor::Seen;
 use crate::hub::Hub;
 
@@ -35,74 +36,6 @@ use crate::hub::Hub;
 pub const MAX_QUEUED_FRAMES: usize = 8;
 /// Frames between two checks of a recording's size.
 const SIZE_CHECK_EVERY: u64 = 25;
-
-/// Where the live view listens and what is recorded.
-#[derive(clap::Args, Clone, Debug)]
-pub struct ViewOptions {
-    /// Where the live view (the Foxglove WebSocket protocol) listens, or
-    /// `off`. The protocol carries no credentials, so an address other than
-    /// loopback also needs --live-view-insecure; reach a remote gateway's
-    /// view through `kubectl port-forward` or an SSH tunnel instead.
-    #[arg(long, env = "VLNAV_LIVE_VIEW", default_value = "127.0.0.1:8765")]
-    pub live_view: String,
-    /// Serve the live view on a non-loopback address: anyone who reaches it
-    /// sees every robot's camera.
-    #[arg(long, env = "VLNAV_LIVE_VIEW_INSECURE")]
-    pub live_view_insecure: bool,
-    /// Record every mission (not dry runs) to MCAP in `<data-dir>/recordings`.
-    #[arg(long, env = "VLNAV_RECORD", default_value_t = true, action = clap::ArgAction::Set)]
-    pub record: bool,
-    /// A recording continues in a new file once its file reaches this size, MiB.
-    #[arg(long, env = "VLNAV_RECORD_MAX_MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..))]
-    pub record_max_mib: u64,
-    /// The recordings directory is kept under this size, MiB: the oldest
-    /// finished recordings are deleted when a mission starts (0: keep all).
-    #[arg(long, env = "VLNAV_RECORD_BUDGET_MIB", default_value_t = 20480)]
-    pub record_budget_mib: u64,
-    /// Facts about the deployment written into every recording's
-    /// `vlnav.mission` metadata (for example the perception mode a replay
-    /// must use).
-    #[arg(skip)]
-    pub metadata: Vec<(String, String)>,
-}
-
-impl Default for ViewOptions {
-    fn default() -> Self {
-        Self {
-            live_view: "127.0.0.1:8765".into(),
-            live_view_insecure: false,
-            record: true,
-            record_max_mib: 512,
-            record_budget_mib: 20480,
-            metadata: Vec::new(),
-        }
-    }
-}
-
-impl ViewOptions {
-    /// Neither a live view nor recordings.
-    pub fn off() -> Self {
-        Self { live_view: "off".into(), record: false, ..Self::default() }
-    }
-
-    /// The live view's address, checked; `None` when it is off.
-    pub fn live_addr(&self) -> anyhow::Result<Option<SocketAddr>> {
-        if self.live_view.eq_ignore_ascii_case("off") || self.live_view.is_empty() {
-            return Ok(None);
-        }
-        let addr: SocketAddr = self.live_view.parse().map_err(|e| {
-            anyhow::anyhow!("--live-view '{}' is not an address like 127.0.0.1:8765 or `off`: {e}", self.live_view)
-        })?;
-        if !addr.ip().is_loopback() && !self.live_view_insecure {
-            anyhow::bail!(
-                "refusing to serve the live view on {addr}: the Foxglove protocol carries no credentials, so anyone \
-                 who reaches it would see every robot's camera. Keep it on loopback and reach it through \
-                 `kubectl port-forward` or an SSH tunnel, or pass --live-view-insecure"
-            );
-        }
-        Ok(Some(addr))
-    }
-}
 
 /// The mission a frame belongs to, as the live view shows it.
 #[derive(Clone, Debug, Default)]

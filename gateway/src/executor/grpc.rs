@@ -11,6 +11,7 @@ use vlnav_geometry::convert::{self, goal_to_proto, pose_to_proto};
 
 use super::machine::{MoveQuery, PlannerReply, Reply, Request, StageFailure};
 use super::model::*;
+use crate::frames::CheckedFrame;
 use crate::pipeline::Pipeline;
 
 /// A stage's error status as the mission's failure: a call past its
@@ -276,14 +277,15 @@ fn detection_to_proto(b: &Detection) -> pb::BoundingBox {
     }
 }
 
-/// What the state machine sees of a sensor frame.
-pub fn frame_from_proto(f: &pb::RgbdFrame, truth: Option<&pb::SimTruth>) -> Frame {
+/// What the state machine sees of a checked sensor frame.
+pub fn frame_from_proto(checked: &CheckedFrame) -> Frame {
+    let f = checked.frame();
     Frame {
         seq: f.seq,
         stamp: f.stamp,
         pose: f.odom.as_ref().map(pose_from_proto).unwrap_or_default(),
-        camera: convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET).ok(),
-        truth: truth.map(|t| Truth {
+        camera: Some(*checked.camera()),
+        truth: checked.truth().map(|t| Truth {
             pose: t.pose.as_ref().map(pose_from_proto),
             path_length_m: t.path_length_m,
             hard_collisions: t.hard_collisions,
@@ -479,5 +481,20 @@ pub fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
             }),
             Box::new(move |m| m.current_step = current_step),
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_machine_reads_the_checked_frame_with_the_camera_its_check_read() {
+        let f = crate::frames::tests::frame(8, 6);
+        let checked = CheckedFrame::check(pb::SensorFrame { frame: Some(f.clone()), truth: None }, None).unwrap();
+        let seen = frame_from_proto(&checked);
+        assert_eq!((seen.seq, seen.stamp), (f.seq, f.stamp));
+        let camera = convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET);
+        assert_eq!(seen.camera, Some(camera.unwrap()));
     }
 }

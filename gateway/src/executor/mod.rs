@@ -9,19 +9,33 @@ pub mod model;
 
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
-use vlnav_proto::v1::{ActionStep, Clarification, MissionState, SensorFrame, Twist2D};
+use vlnav_proto::v1::{ActionStep, Clarification, MissionState, Twist2D};
 
 use crate::config::ExecutorParams;
+use crate::frames::CheckedFrame;
 use crate::hub::Hub;
 use crate::pipeline::Pipeline;
 use machine::{Mission, Next, PlannerQuery, Request};
 
+/// What the executor works with: the stages, its parameters, the mission
+/// store and where else its events go.
 pub struct Ctx<'a> {
     pub pipeline: &'a Pipeline,
     pub params: &'a ExecutorParams,
     pub hub: &'a Hub,
-    /// The live view and recordings: they get the mission's events too.
-    pub viz: &'a crate::viz::Viz,
+    /// Takes the mission's events besides the store.
+    pub events: &'a dyn EventSink,
+}
+
+/// Where the executor's events go besides the mission store. The robot's
+/// actor connects the live view and the recordings to it (`robot.rs`), so
+/// data flows one way: the executor knows nothing of who reads its events
+/// (docs/architecture.md, "The gateway's modules").
+pub trait EventSink: Sync {
+    /// Whether anyone takes events now (each is copied for it).
+    fn wants_events(&self) -> bool;
+    /// A mission of robot `robot_id` recorded `event`.
+    fn event(&self, robot_id: &str, event: vlnav_proto::v1::MissionEvent);
 }
 
 /// What the executor tells the robot after a frame.
@@ -51,7 +65,7 @@ impl Tick {
 
 /// What one control cycle perceived and decided, gathered from the state
 /// machine's requests and the stages' answers; the live view and the mission
-/// recordings draw it (`crate::viz`, docs/observability.md).
+/// recordings draw it (docs/observability.md).
 #[derive(Clone, Debug, Default)]
 pub struct Seen {
     /// Every box the detector returned on this frame.
@@ -190,7 +204,7 @@ impl MissionRun {
     fn record(&mut self, ctx: &Ctx<'_>) {
         for stamped in self.machine.take_events() {
             let (kind, change) = grpc::event_to_proto(stamped.event);
-            let shown = ctx.viz.is_on().then(|| kind.clone());
+            let shown = ctx.events.wants_events().then(|| kind.clone());
             match ctx.hub.record(&self.mission_id, stamped.stamp, Some(kind), change) {
                 Ok(_) => {
                     if let Some(kind) = shown {
@@ -200,7 +214,7 @@ impl MissionRun {
                             stamp: stamped.stamp,
                             kind: Some(kind),
                         };
-                        ctx.viz.event(&self.robot_id, event);
+                        ctx.events.event(&self.robot_id, event);
                     }
                 }
                 Err(e) => tracing::error!(mission = %self.mission_id, "cannot record event: {e}"),
@@ -215,8 +229,8 @@ impl MissionRun {
     }
 
     /// One sensor frame in, one velocity command out.
-    pub async fn on_frame(&mut self, ctx: &Ctx<'_>, sf: &SensorFrame) -> Tick {
-        let Some(frame) = sf.frame.as_ref() else { return Tick::idle() };
+    pub async fn on_frame(&mut self, ctx: &Ctx<'_>, checked: &CheckedFrame) -> Tick {
+        let frame = checked.frame();
         if self.machine.is_awaiting() {
             return Tick::idle();
         }
@@ -233,7 +247,7 @@ impl MissionRun {
             path: Vec::new(),
         };
         let mut seen = Seen::default();
-        let frame_in = grpc::frame_from_proto(frame, sf.truth.as_ref());
+        let frame_in = grpc::frame_from_proto(checked);
         let mut next = guarded(&mut self.machine, |m| m.on_frame(ctx.params, frame_in));
         let command = loop {
             let request = match next {
