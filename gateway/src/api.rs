@@ -34,10 +34,12 @@ use crate::robot::Fleet;
 use crate::store::Store;
 
 /// Longest accepted typed instruction, bytes.
-pub const MAX_INSTRUCTION_BYTES: usize = 4096;
+pub(crate) const MAX_INSTRUCTION_BYTES: usize = 4096;
 /// Audio is streamed to ingress in chunks of this size.
 const AUDIO_CHUNK: usize = 64 * 1024;
 
+/// The gateway's MissionService and FleetService, over its robots' actors,
+/// the mission store and the stage clients.
 #[derive(Clone)]
 pub struct Gateway {
     fleet: Arc<Fleet>,
@@ -50,6 +52,8 @@ pub struct Gateway {
 }
 
 impl Gateway {
+    /// Opens the mission store in `opts.data_dir`, connects (lazily) to the
+    /// stages, reads the token file and starts the live view and recordings.
     pub fn new(opts: &GatewayOptions) -> anyhow::Result<Self> {
         let store = Store::open(&opts.data_dir)?;
         let hub = Hub::open(store)?;
@@ -79,8 +83,14 @@ impl Gateway {
         }
     }
 
-    pub fn fleet(&self) -> &Arc<Fleet> {
-        &self.fleet
+    /// Where the live view listens (`None`: off).
+    pub fn live_view_addr(&self) -> Option<std::net::SocketAddr> {
+        self.fleet.viz().live_addr()
+    }
+
+    /// Waits until every frame handed to the live view and the recordings is written.
+    pub fn flush_view(&self) {
+        self.fleet.viz().flush();
     }
 
     fn hub(&self) -> &Arc<Hub> {

@@ -54,7 +54,7 @@ pub struct GatewayOptions {
 
 /// `--stage-timeout-s` by default: as long as a stage may stay down before
 /// its mission fails (`executor::machine::STAGE_OUTAGE_S`).
-pub const DEFAULT_STAGE_TIMEOUT_S: f64 = 10.0;
+pub(crate) const DEFAULT_STAGE_TIMEOUT_S: f64 = 10.0;
 
 /// A duration in seconds that is finite and above zero.
 fn positive_seconds(s: &str) -> Result<f64, String> {
@@ -109,12 +109,12 @@ impl Default for ViewOptions {
 
 impl ViewOptions {
     /// Neither a live view nor recordings.
-    pub fn off() -> Self {
+    pub(crate) fn off() -> Self {
         Self { live_view: "off".into(), record: false, ..Self::default() }
     }
 
     /// The live view's address, checked; `None` when it is off.
-    pub fn live_addr(&self) -> anyhow::Result<Option<SocketAddr>> {
+    pub(crate) fn live_addr(&self) -> anyhow::Result<Option<SocketAddr>> {
         if self.live_view.eq_ignore_ascii_case("off") || self.live_view.is_empty() {
             return Ok(None);
         }
@@ -261,12 +261,19 @@ impl GatewayOptions {
 /// Loopback ports of the stage services.
 #[derive(Clone, Copy, Debug)]
 pub struct StagePorts {
+    /// The ingress (speech to text).
     pub ingress: u16,
+    /// The planner.
     pub planner: u16,
+    /// The detector.
     pub detector: u16,
+    /// The ReID service.
     pub reid: u16,
+    /// The segmenter.
     pub segmenter: u16,
+    /// The subgoal estimator.
     pub subgoal: u16,
+    /// The local planner.
     pub local_planner: u16,
 }
 

@@ -9,18 +9,48 @@ use vlnav_proto::v1::{DepthEncoding, ImageEncoding, Pose2D, RgbdFrame, SensorFra
 /// Largest accepted image side, pixels.
 pub const MAX_SIDE: u32 = 4096;
 
+/// Why a frame (or an odometry update) was refused; each names the frame's
+/// `seq` and says what was expected.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FrameError {
+    /// A part the gateway needs is absent.
     #[error("frame {seq}: {field} is missing")]
-    Missing { seq: u64, field: &'static str },
+    Missing {
+        /// The frame's sequence number.
+        seq: u64,
+        /// The absent field.
+        field: &'static str,
+    },
+    /// A number is NaN or infinite.
     #[error("frame {seq}: {field} is not a finite number ({value})")]
-    NotFinite { seq: u64, field: &'static str, value: f64 },
+    NotFinite {
+        /// The frame's sequence number.
+        seq: u64,
+        /// The field.
+        field: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// Sizes, encodings or the camera model do not add up.
     #[error("frame {seq}: {what}")]
-    Invalid { seq: u64, what: String },
+    Invalid {
+        /// The frame's sequence number.
+        seq: u64,
+        /// What is wrong and what was expected.
+        what: String,
+    },
+    /// Sensor time went backwards.
     #[error(
         "frame {seq}: stamp {stamp} s is older than the previous frame's {previous} s; sensor time must not go backwards"
     )]
-    StampBackwards { seq: u64, stamp: f64, previous: f64 },
+    StampBackwards {
+        /// The frame's sequence number.
+        seq: u64,
+        /// Its stamp, seconds.
+        stamp: f64,
+        /// The previous frame's stamp, seconds.
+        previous: f64,
+    },
 }
 
 fn finite(seq: u64, field: &'static str, value: f64) -> Result<(), FrameError> {
@@ -35,14 +65,14 @@ pub fn check_pose(seq: u64, pose: &Pose2D) -> Result<(), FrameError> {
 }
 
 /// Whether the frame's depth needs [`decode_depth`] (anything but raw).
-pub fn is_encoded(frame: &RgbdFrame) -> bool {
+pub(crate) fn is_encoded(frame: &RgbdFrame) -> bool {
     frame.depth.as_ref().is_some_and(|d| d.encoding != DepthEncoding::RawU16 as i32)
 }
 
 /// Decodes RVL depth (the robot link's codec, docs/architecture.md "Frames")
 /// in place, so that everything past the gateway reads raw u16 millimetres.
 /// The declared size bounds what is decoded, whatever the stream says.
-pub fn decode_depth(frame: &mut RgbdFrame) -> Result<(), FrameError> {
+pub(crate) fn decode_depth(frame: &mut RgbdFrame) -> Result<(), FrameError> {
     let seq = frame.seq;
     let Some(depth) = frame.depth.as_mut() else { return Ok(()) };
     match DepthEncoding::try_from(depth.encoding) {
@@ -94,7 +124,7 @@ impl CheckedFrame {
 
     /// The simulator's ground truth sent with the frame, if any (not checked:
     /// it is read only for the evaluation's metrics).
-    pub fn truth(&self) -> Option<&SimTruth> {
+    pub(crate) fn truth(&self) -> Option<&SimTruth> {
         self.truth.as_ref()
     }
 
@@ -104,7 +134,7 @@ impl CheckedFrame {
     }
 
     /// The message as the robot sent it (depth decoded).
-    pub fn into_sensor(self) -> SensorFrame {
+    pub(crate) fn into_sensor(self) -> SensorFrame {
         SensorFrame { frame: Some(self.frame), truth: self.truth }
     }
 }

@@ -2,6 +2,10 @@
 //! agents attach to, and one mission-executor actor per robot that runs a
 //! validated plan step by step through the pipeline services.
 //!
+//! Other crates see only [`api::Gateway`], the settings ([`config`]), the
+//! token file ([`auth`]) and the frame checks ([`frames`]); every other
+//! module is the gateway's own (docs/architecture.md, "The gateway's modules").
+//!
 //! - [`frames`]: pure checks of what edge agents send (sizes, finiteness, time order),
 //!   and the checked frame the rest of the gateway takes;
 //! - [`executor`]: the step state machine (MOVE, FIND, FOLLOW, RETURN, exploration,
@@ -18,14 +22,15 @@
 pub mod api;
 pub mod auth;
 pub mod config;
-pub mod executor;
 pub mod frames;
-pub mod hub;
-pub mod limit;
+
+mod executor;
+mod hub;
+mod limit;
 mod link;
-pub mod pipeline;
-pub mod robot;
-pub mod store;
-pub mod viz;
+mod pipeline;
+mod robot;
+mod store;
+mod viz;
 
 pub use config::GatewayOptions;

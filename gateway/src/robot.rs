@@ -21,9 +21,9 @@ use crate::hub::Hub;
 use crate::pipeline::Pipeline;
 use crate::viz::{FrameView, MissionView, Viz};
 
-pub type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
+pub(crate) type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
 
-pub enum RobotMsg {
+pub(crate) enum RobotMsg {
     Attach {
         hello: EdgeHello,
         outbound: Outbound,
@@ -72,7 +72,7 @@ pub enum RobotMsg {
 type RobotEntry = (Mailbox<RobotMsg>, Arc<Mutex<RobotInfo>>);
 
 /// Every robot the gateway has seen, connected or not.
-pub struct Fleet {
+pub(crate) struct Fleet {
     robots: Mutex<HashMap<String, RobotEntry>>,
     hub: Arc<Hub>,
     pipeline: Pipeline,
@@ -82,12 +82,12 @@ pub struct Fleet {
 }
 
 impl Fleet {
-    pub fn new(hub: Arc<Hub>, pipeline: Pipeline, params: ExecutorParams, viz: Viz) -> Arc<Self> {
+    pub(crate) fn new(hub: Arc<Hub>, pipeline: Pipeline, params: ExecutorParams, viz: Viz) -> Arc<Self> {
         Arc::new(Self { robots: Mutex::new(HashMap::new()), hub, pipeline, params, viz, next_conn: 1.into() })
     }
 
     /// The live view and recordings.
-    pub fn viz(&self) -> &Viz {
+    pub(crate) fn viz(&self) -> &Viz {
         &self.viz
     }
 
@@ -145,11 +145,11 @@ impl Fleet {
         }
     }
 
-    pub fn next_conn(&self) -> u64 {
+    pub(crate) fn next_conn(&self) -> u64 {
         self.next_conn.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
     }
 
-    pub async fn attach(
+    pub(crate) async fn attach(
         self: &Arc<Self>,
         hello: EdgeHello,
         outbound: Outbound,
@@ -160,12 +160,12 @@ impl Fleet {
         Ok(mb)
     }
 
-    pub async fn reserve(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
+    pub(crate) async fn reserve(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
         let mb = self.connected(robot_id)?;
         mb.call(|reply| RobotMsg::Reserve { mission_id: mission_id.to_string(), reply }).await?
     }
 
-    pub async fn release(&self, robot_id: &str, mission_id: &str) {
+    pub(crate) async fn release(&self, robot_id: &str, mission_id: &str) {
         let mb = self.lock().get(robot_id).map(|(mb, _)| mb.clone());
         if let Some(mb) = mb {
             let _ = mb.tell(RobotMsg::Release { mission_id: mission_id.to_string() }).await;
@@ -179,17 +179,17 @@ impl Fleet {
             .ok_or_else(|| Status::not_found(format!("robot '{robot_id}' is not known to this gateway")))
     }
 
-    pub async fn start(&self, robot_id: &str, run: MissionRun) -> Result<(), Status> {
+    pub(crate) async fn start(&self, robot_id: &str, run: MissionRun) -> Result<(), Status> {
         let mb = self.any(robot_id)?;
         mb.call(|reply| RobotMsg::Start { run: Box::new(run), reply }).await?
     }
 
-    pub async fn cancel(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
+    pub(crate) async fn cancel(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
         let mb = self.any(robot_id)?;
         mb.call(|reply| RobotMsg::Cancel { mission_id: mission_id.to_string(), reply }).await?
     }
 
-    pub async fn answer(
+    pub(crate) async fn answer(
         &self,
         robot_id: &str,
         mission_id: &str,
@@ -199,7 +199,7 @@ impl Fleet {
         mb.call(|reply| RobotMsg::Answer { mission_id: mission_id.to_string(), answer, reply }).await?
     }
 
-    pub fn list(&self) -> Vec<RobotInfo> {
+    pub(crate) fn list(&self) -> Vec<RobotInfo> {
         let mut out: Vec<RobotInfo> =
             self.lock().values().map(|(_, i)| i.lock().map(|i| i.clone()).unwrap_or_default()).collect();
         out.sort_by(|a, b| a.robot_id.cmp(&b.robot_id));
@@ -207,15 +207,15 @@ impl Fleet {
     }
 
     /// Forgets every robot: their actors end once their streams are gone.
-    pub fn close(&self) {
+    pub(crate) fn close(&self) {
         self.lock().clear();
     }
 
-    pub fn hub(&self) -> &Arc<Hub> {
+    pub(crate) fn hub(&self) -> &Arc<Hub> {
         &self.hub
     }
 
-    pub fn pipeline(&self) -> &Pipeline {
+    pub(crate) fn pipeline(&self) -> &Pipeline {
         &self.pipeline
     }
 }

@@ -33,28 +33,28 @@ use crate::executor::Seen;
 use crate::hub::Hub;
 
 /// Frames waiting for the view thread beyond which a newer one is dropped.
-pub const MAX_QUEUED_FRAMES: usize = 8;
+pub(crate) const MAX_QUEUED_FRAMES: usize = 8;
 /// Frames between two checks of a recording's size.
 const SIZE_CHECK_EVERY: u64 = 25;
 
 /// The mission a frame belongs to, as the live view shows it.
 #[derive(Clone, Debug, Default)]
-pub struct MissionView {
-    pub mission_id: String,
+pub(crate) struct MissionView {
+    pub(crate) mission_id: String,
     /// The step under way: index and description.
-    pub step: Option<(u32, String)>,
-    pub steps: usize,
+    pub(crate) step: Option<(u32, String)>,
+    pub(crate) steps: usize,
     /// "running", "awaiting answer", or the terminal state it reached.
-    pub state: String,
+    pub(crate) state: String,
 }
 
 /// One frame and what the gateway made of it.
-pub struct FrameView {
-    pub robot_id: String,
-    pub frame: pb::SensorFrame,
-    pub command: pb::VelocityCommand,
-    pub mission: Option<MissionView>,
-    pub seen: Seen,
+pub(crate) struct FrameView {
+    pub(crate) robot_id: String,
+    pub(crate) frame: pb::SensorFrame,
+    pub(crate) command: pb::VelocityCommand,
+    pub(crate) mission: Option<MissionView>,
+    pub(crate) seen: Seen,
 }
 
 enum Msg {
@@ -83,7 +83,7 @@ enum Msg {
 /// The handle robot actors use; cheap to clone. Without a live view and
 /// without recordings every call returns at once.
 #[derive(Clone, Default)]
-pub struct Viz {
+pub(crate) struct Viz {
     inner: Option<Arc<Inner>>,
 }
 
@@ -99,7 +99,7 @@ struct Inner {
 impl Viz {
     /// Starts the view thread (and the live view's server, bound before this
     /// returns so a taken port is an error here) when either is wanted.
-    pub fn start(opts: &ViewOptions, data_dir: &Path, hub: Arc<Hub>) -> anyhow::Result<Self> {
+    pub(crate) fn start(opts: &ViewOptions, data_dir: &Path, hub: Arc<Hub>) -> anyhow::Result<Self> {
         let live = opts.live_addr()?;
         if live.is_none() && !opts.record {
             return Ok(Self::default());
@@ -160,18 +160,19 @@ impl Viz {
     }
 
     /// Where the live view listens (with the port the OS chose for port 0).
-    pub fn live_addr(&self) -> Option<SocketAddr> {
+    pub(crate) fn live_addr(&self) -> Option<SocketAddr> {
         self.inner.as_ref().and_then(|i| i.live)
     }
 
     /// Frames dropped because the view thread was behind.
-    pub fn dropped_frames(&self) -> u64 {
+    #[cfg(test)]
+    pub(crate) fn dropped_frames(&self) -> u64 {
         self.inner.as_ref().map_or(0, |i| i.dropped.load(Ordering::Relaxed))
     }
 
     /// Starts recording a mission; returns the file it goes to. The mission
     /// record names it once the file is open.
-    pub fn start_mission(
+    pub(crate) fn start_mission(
         &self,
         robot_id: &str,
         mission_id: &str,
@@ -191,21 +192,21 @@ impl Viz {
     }
 
     /// Ends a mission's recording (its file is finished and closed).
-    pub fn end_mission(&self, robot_id: &str, mission_id: &str) {
+    pub(crate) fn end_mission(&self, robot_id: &str, mission_id: &str) {
         if let Some(inner) = &self.inner {
             let _ = inner.tx.send(Msg::End { robot_id: robot_id.into(), mission_id: mission_id.into() });
         }
     }
 
     /// A mission event, in the recording and the live view.
-    pub fn event(&self, robot_id: &str, event: pb::MissionEvent) {
+    pub(crate) fn event(&self, robot_id: &str, event: pb::MissionEvent) {
         if let Some(inner) = &self.inner {
             let _ = inner.tx.send(Msg::Event { robot_id: robot_id.into(), event });
         }
     }
 
     /// Whether frames are wanted at all.
-    pub fn is_on(&self) -> bool {
+    pub(crate) fn is_on(&self) -> bool {
         self.inner.is_some()
     }
 
@@ -214,7 +215,7 @@ impl Viz {
     /// from the view and the recording (and counted): its control loop never
     /// waits. A lockstep robot's clock stands still until it is answered, so
     /// its frame waits for a place instead and its recording stays complete.
-    pub async fn frame(&self, view: FrameView, lockstep: bool) {
+    pub(crate) async fn frame(&self, view: FrameView, lockstep: bool) {
         let Some(inner) = &self.inner else { return };
         let permit = match inner.places.clone().try_acquire_owned() {
             Ok(permit) => permit,
@@ -237,13 +238,13 @@ impl Viz {
     }
 
     /// Waits until everything handed over so far is written (tests).
-    pub fn flush(&self) {
+    pub(crate) fn flush(&self) {
         self.wait_for(Msg::Flush);
     }
 
     /// Writes what was handed over, then ends every recording still open, so
     /// that each file is complete (summary and footer) when the gateway stops.
-    pub fn finish(&self) {
+    pub(crate) fn finish(&self) {
         self.wait_for(Msg::Finish);
     }
 

@@ -30,16 +30,16 @@ fn stage(stage: &'static str, deadline: Duration) -> impl FnOnce(tonic::Status) 
 }
 
 /// The stages, over gRPC, for one robot and one frame.
-pub struct Stages<'a> {
-    pub pipeline: &'a Pipeline,
-    pub robot_id: &'a str,
-    pub frame: &'a pb::RgbdFrame,
+pub(crate) struct Stages<'a> {
+    pub(crate) pipeline: &'a Pipeline,
+    pub(crate) robot_id: &'a str,
+    pub(crate) frame: &'a pb::RgbdFrame,
     /// This frame's no-go points from the segmenter, for its local-planner call.
-    pub no_go: Vec<pb::Point3>,
+    pub(crate) no_go: Vec<pb::Point3>,
     /// This frame's person boxes from the detector, for its local-planner call.
-    pub people: Vec<pb::BoundingBox>,
+    pub(crate) people: Vec<pb::BoundingBox>,
     /// The primitive the local planner chose on this frame, base_link.
-    pub path: Vec<pb::Point3>,
+    pub(crate) path: Vec<pb::Point3>,
 }
 
 impl Stages<'_> {
@@ -57,7 +57,7 @@ impl Stages<'_> {
         stage(name, self.pipeline.stage_timeout)
     }
 
-    pub async fn call(&mut self, request: Request) -> Result<Reply, StageFailure> {
+    pub(crate) async fn call(&mut self, request: Request) -> Result<Reply, StageFailure> {
         let pipeline = self.pipeline;
         match request {
             Request::StartStep { move_goal, forget, .. } => {
@@ -278,10 +278,9 @@ fn detection_to_proto(b: &Detection) -> pb::BoundingBox {
 }
 
 /// What the state machine sees of a checked sensor frame.
-pub fn frame_from_proto(checked: &CheckedFrame) -> Frame {
+pub(crate) fn frame_from_proto(checked: &CheckedFrame) -> Frame {
     let f = checked.frame();
     Frame {
-        seq: f.seq,
         stamp: f.stamp,
         pose: f.odom.as_ref().map(pose_from_proto).unwrap_or_default(),
         camera: Some(*checked.camera()),
@@ -295,7 +294,7 @@ pub fn frame_from_proto(checked: &CheckedFrame) -> Frame {
     }
 }
 
-pub fn action_from_proto(a: i32) -> Action {
+pub(crate) fn action_from_proto(a: i32) -> Action {
     match pb::ActionKind::try_from(a) {
         Ok(pb::ActionKind::Move) => Action::Move,
         Ok(pb::ActionKind::Find) => Action::Find,
@@ -315,7 +314,7 @@ fn action_to_proto(a: Action) -> pb::ActionKind {
     }
 }
 
-pub fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
+pub(crate) fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
     PlanStep {
         action: action_from_proto(s.action),
         desc: s.desc.clone(),
@@ -335,7 +334,7 @@ pub fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
     }
 }
 
-pub fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
+pub(crate) fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
     pb::ActionStep {
         action: action_to_proto(s.action) as i32,
         desc: s.desc.clone(),
@@ -355,15 +354,15 @@ pub fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
     }
 }
 
-pub fn question_from_proto(c: &pb::Clarification) -> Question {
+pub(crate) fn question_from_proto(c: &pb::Clarification) -> Question {
     Question { question: c.question.clone(), reason: c.reason.clone(), options: c.options.clone() }
 }
 
-pub fn question_to_proto(q: &Question) -> pb::Clarification {
+pub(crate) fn question_to_proto(q: &Question) -> pb::Clarification {
     pb::Clarification { question: q.question.clone(), reason: q.reason.clone(), options: q.options.clone() }
 }
 
-pub fn outcome_to_proto(o: Outcome) -> pb::MissionState {
+pub(crate) fn outcome_to_proto(o: Outcome) -> pb::MissionState {
     match o {
         Outcome::Succeeded => pb::MissionState::Succeeded,
         Outcome::Failed => pb::MissionState::Failed,
@@ -388,7 +387,7 @@ fn metrics_to_proto(m: &Metrics) -> pb::MissionMetrics {
 }
 
 /// The planner's response as the state machine takes it.
-pub fn planner_reply(resp: pb::PlanResponse) -> Result<PlannerReply, tonic::Status> {
+pub(crate) fn planner_reply(resp: pb::PlanResponse) -> Result<PlannerReply, tonic::Status> {
     match resp.outcome {
         Some(pb::plan_response::Outcome::Plan(p)) => {
             Ok(PlannerReply::Plan { steps: p.steps.iter().map(step_from_proto).collect(), plan_json: resp.plan_json })
@@ -399,10 +398,10 @@ pub fn planner_reply(resp: pb::PlanResponse) -> Result<PlannerReply, tonic::Stat
 }
 
 /// A mission-record change that comes with an event.
-pub type Change = Box<dyn FnOnce(&mut pb::Mission) + Send>;
+pub(crate) type Change = Box<dyn FnOnce(&mut pb::Mission) + Send>;
 
 /// An event as the mission store records it, with the change it makes to the mission.
-pub fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
+pub(crate) fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
     use pb::mission_event::Kind;
     match event {
         Event::StepStarted { index, step, anchor } => (
@@ -493,7 +492,7 @@ mod tests {
         let f = crate::frames::tests::frame(8, 6);
         let checked = CheckedFrame::check(pb::SensorFrame { frame: Some(f.clone()), truth: None }, None).unwrap();
         let seen = frame_from_proto(&checked);
-        assert_eq!((seen.seq, seen.stamp), (f.seq, f.stamp));
+        assert_eq!(seen.stamp, f.stamp);
         let camera = convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET);
         assert_eq!(seen.camera, Some(camera.unwrap()));
     }

@@ -3,12 +3,11 @@
 //! requests through the stage services over gRPC (`grpc`), records its events
 //! in the mission store and traces each control cycle.
 
-pub mod grpc;
-pub mod machine;
-pub mod model;
+pub(crate) mod grpc;
+pub(crate) mod machine;
+pub(crate) mod model;
 
 use tracing::Instrument;
-use tracing_opentelemetry::OpenTelemetrySpanExt;
 use vlnav_proto::v1::{ActionStep, Clarification, MissionState, Twist2D};
 
 use crate::config::ExecutorParams;
@@ -19,19 +18,19 @@ use machine::{Mission, Next, PlannerQuery, Request};
 
 /// What the executor works with: the stages, its parameters, the mission
 /// store and where else its events go.
-pub struct Ctx<'a> {
-    pub pipeline: &'a Pipeline,
-    pub params: &'a ExecutorParams,
-    pub hub: &'a Hub,
+pub(crate) struct Ctx<'a> {
+    pub(crate) pipeline: &'a Pipeline,
+    pub(crate) params: &'a ExecutorParams,
+    pub(crate) hub: &'a Hub,
     /// Takes the mission's events besides the store.
-    pub events: &'a dyn EventSink,
+    pub(crate) events: &'a dyn EventSink,
 }
 
 /// Where the executor's events go besides the mission store. The robot's
 /// actor connects the live view and the recordings to it (`robot.rs`), so
 /// data flows one way: the executor knows nothing of who reads its events
 /// (docs/architecture.md, "The gateway's modules").
-pub trait EventSink: Sync {
+pub(crate) trait EventSink: Sync {
     /// Whether anyone takes events now (each is copied for it).
     fn wants_events(&self) -> bool;
     /// A mission of robot `robot_id` recorded `event`.
@@ -39,16 +38,16 @@ pub trait EventSink: Sync {
 }
 
 /// What the executor tells the robot after a frame.
-pub struct Tick {
-    pub twist: Twist2D,
+pub(crate) struct Tick {
+    pub(crate) twist: Twist2D,
     /// False while the robot may idle (waiting for the user or for a stage).
-    pub active: bool,
+    pub(crate) active: bool,
     /// Set when the mission reached a terminal state on this frame.
-    pub finished: Option<MissionState>,
+    pub(crate) finished: Option<MissionState>,
     /// The control-cycle span of this frame (parent of the edge-forward span).
-    pub span: tracing::Span,
+    pub(crate) span: tracing::Span,
     /// What the cycle perceived and decided, for the live view and recordings.
-    pub seen: Seen,
+    pub(crate) seen: Seen,
 }
 
 impl Tick {
@@ -67,22 +66,22 @@ impl Tick {
 /// machine's requests and the stages' answers; the live view and the mission
 /// recordings draw it (docs/observability.md).
 #[derive(Clone, Debug, Default)]
-pub struct Seen {
+pub(crate) struct Seen {
     /// Every box the detector returned on this frame.
-    pub boxes: Vec<model::Detection>,
+    pub(crate) boxes: Vec<model::Detection>,
     /// The box handed to the estimator: the target as the executor tracks it.
-    pub target: Option<model::Detection>,
+    pub(crate) target: Option<model::Detection>,
     /// The segmenter's virtual obstacle points, `base_link`.
-    pub no_go: Vec<[f64; 3]>,
+    pub(crate) no_go: Vec<[f64; 3]>,
     /// The estimator's fused target, `odom`.
-    pub fused_target: Option<[f64; 3]>,
+    pub(crate) fused_target: Option<[f64; 3]>,
     /// The goal driven toward on this frame, `odom`.
-    pub goal: Option<model::Goal>,
+    pub(crate) goal: Option<model::Goal>,
     /// The local planner's answer and its chosen primitive (`base_link`).
-    pub drive: Option<model::DriveAnswer>,
-    pub path: Vec<[f64; 2]>,
+    pub(crate) drive: Option<model::DriveAnswer>,
+    pub(crate) path: Vec<[f64; 2]>,
     /// A plan step began on this frame (odometry is re-anchored there).
-    pub step_started: bool,
+    pub(crate) step_started: bool,
 }
 
 impl Seen {
@@ -135,9 +134,9 @@ fn guarded(machine: &mut Mission, decide: impl FnOnce(&mut Mission) -> Next) -> 
 }
 
 /// One mission on one robot: the state machine and its trace spans.
-pub struct MissionRun {
-    pub mission_id: String,
-    pub robot_id: String,
+pub(crate) struct MissionRun {
+    pub(crate) mission_id: String,
+    pub(crate) robot_id: String,
     machine: Mission,
     span: tracing::Span,
     /// The span of the step under way.
@@ -149,7 +148,7 @@ pub struct MissionRun {
 
 impl MissionRun {
     /// A run of `plan`; `awaiting` holds a question asked before execution.
-    pub fn new(
+    pub(crate) fn new(
         mission_id: String,
         robot_id: String,
         instruction: String,
@@ -171,33 +170,33 @@ impl MissionRun {
     }
 
     /// The step under way (index, description), once one has started.
-    pub fn step(&self) -> Option<&(u32, String)> {
+    pub(crate) fn step(&self) -> Option<&(u32, String)> {
         self.step.as_ref()
     }
 
     /// The instruction as the user gave it.
-    pub fn instruction(&self) -> &str {
+    pub(crate) fn instruction(&self) -> &str {
         &self.instruction
     }
 
     /// The plan being executed, as the planner's contract states it.
-    pub fn plan_proto(&self) -> vlnav_proto::v1::ActionPlan {
+    pub(crate) fn plan_proto(&self) -> vlnav_proto::v1::ActionPlan {
         vlnav_proto::v1::ActionPlan { steps: self.machine.plan().iter().map(grpc::step_to_proto).collect() }
     }
 
     /// The plan's length.
-    pub fn plan_len(&self) -> usize {
+    pub(crate) fn plan_len(&self) -> usize {
         self.machine.plan().len()
     }
 
-    pub fn is_awaiting(&self) -> bool {
+    pub(crate) fn is_awaiting(&self) -> bool {
         self.machine.is_awaiting()
     }
 
     /// Writes the machine's new events to the mission store, in order.
     /// `on_frame` leaves its last frame's events for the robot's actor to
     /// flush once it has updated what it reports of the robot.
-    pub fn flush(&mut self, ctx: &Ctx<'_>) {
+    pub(crate) fn flush(&mut self, ctx: &Ctx<'_>) {
         self.record(ctx);
     }
 
@@ -223,13 +222,13 @@ impl MissionRun {
     }
 
     /// Ends the mission: the user cancelled it.
-    pub fn cancel(&mut self, ctx: &Ctx<'_>) {
+    pub(crate) fn cancel(&mut self, ctx: &Ctx<'_>) {
         self.machine.cancel();
         self.record(ctx);
     }
 
     /// One sensor frame in, one velocity command out.
-    pub async fn on_frame(&mut self, ctx: &Ctx<'_>, checked: &CheckedFrame) -> Tick {
+    pub(crate) async fn on_frame(&mut self, ctx: &Ctx<'_>, checked: &CheckedFrame) -> Tick {
         let frame = checked.frame();
         if self.machine.is_awaiting() {
             return Tick::idle();
@@ -292,7 +291,7 @@ impl MissionRun {
 
     /// The user's answer: the planner revises the steps from the one that
     /// failed on. Returns the revised full plan, or a further question.
-    pub async fn answer(
+    pub(crate) async fn answer(
         &mut self,
         ctx: &Ctx<'_>,
         answer: &str,
@@ -327,12 +326,6 @@ impl MissionRun {
         let result = self.machine.on_planner_reply(answer, grpc::planner_reply(response)?);
         self.record(ctx);
         Ok(result.map(|plan| plan.iter().map(grpc::step_to_proto).collect()).map_err(|q| grpc::question_to_proto(&q)))
-    }
-
-    /// The W3C trace id of this mission.
-    pub fn trace_id(&self) -> String {
-        use opentelemetry::trace::TraceContextExt;
-        self.span.context().span().span_context().trace_id().to_string()
     }
 }
 

@@ -43,13 +43,7 @@ pub(super) fn camera() -> Camera {
 }
 
 pub(super) fn at(stamp: f64, x: f64, y: f64, theta: f64) -> Frame {
-    Frame {
-        seq: (stamp * 10.0).round() as u64,
-        stamp,
-        pose: Pose2::new(x, y, theta),
-        camera: Some(camera()),
-        truth: None,
-    }
+    Frame { stamp, pose: Pose2::new(x, y, theta), camera: Some(camera()), truth: None }
 }
 
 pub(super) fn mission(plan: Vec<PlanStep>) -> Mission {
