@@ -34,12 +34,9 @@ pub(crate) struct Stages<'a> {
     pub(crate) pipeline: &'a Pipeline,
     pub(crate) robot_id: &'a str,
     pub(crate) frame: &'a pb::RgbdFrame,
-    /// This frame's no-go points from the segmenter, for its local-planner call.
-    pub(crate) no_go: Vec<pb::Point3>,
-    /// This frame's person boxes from the detector, for its local-planner call.
-    pub(crate) people: Vec<pb::BoundingBox>,
-    /// The primitive the local planner chose on this frame, base_link.
-    pub(crate) path: Vec<pb::Point3>,
+    /// The segmenter's points of a `Perceive` whose detection then failed:
+    /// the machine gets no reply, but the live view still shows them.
+    pub(crate) segmented_unanswered: Option<Vec<Vector3<f64>>>,
 }
 
 impl Stages<'_> {
@@ -88,10 +85,13 @@ impl Stages<'_> {
                 let mut detector = pipeline.detector.clone();
                 let request = pb::DetectRequest { frame: Some(self.frame.clone()), class_ids, min_score };
                 let (detected, no_go) = tokio::join!(detector.detect(self.deadline(request)), segment);
-                self.no_go = no_go?;
+                let no_go: Vec<Vector3<f64>> = no_go?.iter().map(|p| Vector3::new(p.x, p.y, p.z)).collect();
                 let boxes = match (detected, detect) {
                     (Ok(d), _) => d.into_inner().boxes,
-                    (Err(s), Some(_)) => return Err(self.failed("detector")(s)),
+                    (Err(s), Some(_)) => {
+                        self.segmented_unanswered = Some(no_go);
+                        return Err(self.failed("detector")(s));
+                    }
                     // Driving needs only depth: without the detector the
                     // robot goes on without knowing who is a person.
                     (Err(s), None) => {
@@ -100,10 +100,10 @@ impl Stages<'_> {
                         Vec::new()
                     }
                 };
-                self.people = boxes.iter().filter(|b| b.class_id == PERSON_CLASS).cloned().collect();
+                let people = boxes.iter().filter(|b| b.class_id == PERSON_CLASS).map(detection_from_proto).collect();
                 let boxes =
                     if detect.is_some() { boxes.iter().map(detection_from_proto).collect() } else { Vec::new() };
-                Ok(Reply::Perceived { boxes })
+                Ok(Reply::Perceived { boxes, obstacles: Obstacles { no_go, people } })
             }
             Request::Identify { boxes, name } => {
                 let identities = pipeline
@@ -159,7 +159,7 @@ impl Stages<'_> {
                 }))
             }
             Request::MoveGoal(q) => Ok(Reply::Goal(self.move_goal(q).await?)),
-            Request::Drive { goal } => {
+            Request::Drive { goal, obstacles } => {
                 let plan = pipeline
                     .local_planner
                     .clone()
@@ -167,9 +167,9 @@ impl Stages<'_> {
                         robot_id: self.robot_id.to_string(),
                         frame: Some(depth_only(self.frame)),
                         goal: Some(goal_to_proto(&goal)),
-                        no_go_points: self.no_go.clone(),
+                        no_go_points: obstacles.no_go.iter().map(|p| pb::Point3 { x: p.x, y: p.y, z: p.z }).collect(),
                         max_speed: 0.0,
-                        people: self.people.clone(),
+                        people: obstacles.people.iter().map(detection_to_proto).collect(),
                     }))
                     .await
                     .map_err(self.failed("local-planner"))?
@@ -182,15 +182,15 @@ impl Stages<'_> {
                     Ok(pb::LocalPlanStatus::NoProgress) => DriveStatus::NoProgress,
                     _ => DriveStatus::Unspecified,
                 };
-                self.path = plan.path;
-                Ok(Reply::Driven(DriveAnswer {
+                let answer = DriveAnswer {
                     status,
                     cmd: plan.cmd.map_or(Twist::ZERO, |c| Twist { linear: c.linear, angular: c.angular }),
                     path_id: plan.path_id,
                     distance_to_goal: plan.distance_to_goal,
                     heading_error: plan.heading_error,
                     free_paths: plan.free_paths,
-                }))
+                };
+                Ok(Reply::Driven { answer, path: plan.path.iter().map(|p| [p.x, p.y]).collect() })
             }
         }
     }

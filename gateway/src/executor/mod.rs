@@ -14,7 +14,7 @@ use crate::config::ExecutorParams;
 use crate::frames::CheckedFrame;
 use crate::hub::Hub;
 use crate::pipeline::Pipeline;
-use machine::{Mission, Next, PlannerQuery, Request};
+use machine::{Mission, Next, PlannerQuery, Reply, Request};
 
 /// What the executor works with: the stages, its parameters, the mission
 /// store and where else its events go.
@@ -89,18 +89,24 @@ impl Seen {
         match request {
             Request::StartStep { .. } => self.step_started = true,
             Request::Locate { detection, .. } => self.target = Some(detection.clone()),
-            Request::Drive { goal } => self.goal = Some(*goal),
+            Request::Drive { goal, .. } => self.goal = Some(*goal),
             _ => {}
         }
     }
 
     fn reply(&mut self, reply: &machine::Reply) {
         match reply {
-            machine::Reply::Perceived { boxes } => self.boxes = boxes.clone(),
+            machine::Reply::Perceived { boxes, obstacles } => {
+                self.boxes = boxes.clone();
+                self.no_go = obstacles.no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
+            }
             machine::Reply::Located(estimate) => {
                 self.fused_target = estimate.fused_target.map(|p| [p.x, p.y, p.z]);
             }
-            machine::Reply::Driven(answer) => self.drive = Some(*answer),
+            machine::Reply::Driven { answer, path } => {
+                self.drive = Some(*answer);
+                self.path = path.clone();
+            }
             _ => {}
         }
     }
@@ -237,15 +243,11 @@ impl MissionRun {
         let cycle =
             tracing::info_span!(parent: &parent, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
         let robot_id = self.robot_id.clone();
-        let mut stages = grpc::Stages {
-            pipeline: ctx.pipeline,
-            robot_id: &robot_id,
-            frame,
-            no_go: Vec::new(),
-            people: Vec::new(),
-            path: Vec::new(),
-        };
+        let mut stages =
+            grpc::Stages { pipeline: ctx.pipeline, robot_id: &robot_id, frame, segmented_unanswered: None };
         let mut seen = Seen::default();
+        // The person boxes of the frame's last perception, shown when no FIND asked for boxes.
+        let mut people = Vec::new();
         let frame_in = grpc::frame_from_proto(checked);
         let mut next = guarded(&mut self.machine, |m| m.on_frame(ctx.params, frame_in));
         let command = loop {
@@ -266,9 +268,15 @@ impl MissionRun {
             next = match stages.call(request).instrument(span).await {
                 Ok(reply) => {
                     seen.reply(&reply);
+                    if let Reply::Perceived { obstacles, .. } = &reply {
+                        people.clone_from(&obstacles.people);
+                    }
                     guarded(&mut self.machine, |m| m.on_reply(ctx.params, reply))
                 }
                 Err(failure) => {
+                    if let Some(no_go) = stages.segmented_unanswered.take() {
+                        seen.no_go = no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
+                    }
                     tracing::warn!(parent: &cycle, mission = %self.mission_id, "holding the robot: {failure}");
                     guarded(&mut self.machine, |m| m.on_stage_error(failure))
                 }
@@ -276,10 +284,8 @@ impl MissionRun {
         };
         if seen.boxes.is_empty() {
             // Outside a FIND the detector was asked for people only.
-            seen.boxes = stages.people.iter().map(grpc::detection_from_proto).collect();
+            seen.boxes = people;
         }
-        seen.no_go = stages.no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
-        seen.path = stages.path.iter().map(|p| [p.x, p.y]).collect();
         Tick {
             twist: Twist2D { linear: command.twist.linear, angular: command.twist.angular },
             active: command.active,

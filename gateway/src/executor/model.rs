@@ -133,6 +133,19 @@ pub(crate) enum DriveStatus {
     NoProgress,
 }
 
+/// What the current frame's perception found that its local-planner step
+/// takes along (`Reply::Perceived`, then `Request::Drive`): the machine keeps
+/// it for the frame, so everything a step is decided on passes through the
+/// machine.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct Obstacles {
+    /// The segmenter's virtual obstacle points, `base_link`.
+    pub(crate) no_go: Vec<Vector3<f64>>,
+    /// The detector's person boxes, for the local planner to keep clear of
+    /// walkers (docs/design.md §4).
+    pub(crate) people: Vec<Detection>,
+}
+
 /// The local planner's answer for one control step.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct DriveAnswer {

@@ -151,7 +151,7 @@ impl Mission {
                 self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0)))
             }
             Explore::Turn { goal, .. } | Explore::Search { goal, .. } => {
-                self.call(Pending::ExploreDriven(state), Request::Drive { goal })
+                self.call(Pending::ExploreDriven(state), self.drive(goal))
             }
             Explore::Look { frames_left, turn, leg, origin } if frames_left > 1 => {
                 f.explore = Explore::Look { frames_left: frames_left - 1, turn, leg, origin };

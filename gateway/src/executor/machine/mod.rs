@@ -122,8 +122,8 @@ pub(crate) enum Request {
     StartStep { index: u32, action: Action, desc: String, move_goal: Option<MoveQuery>, forget: bool },
     /// Segment the frame into no-go points and detect: for a FIND every
     /// class at `min_score` (the step's `class_id` is the target; the others
-    /// vote against it), otherwise people only; all at once. The adapter
-    /// keeps the no-go points and person boxes for this frame's `Drive`.
+    /// vote against it), otherwise people only; all at once. The reply's
+    /// no-go points and person boxes go with this frame's `Drive`.
     Perceive { detect: Option<(i32, f32)> },
     /// Which of `boxes` is the person `name`.
     Identify { boxes: Vec<Detection>, name: String },
@@ -132,19 +132,33 @@ pub(crate) enum Request {
     Locate { track_key: String, detection: Detection, d_s: f64, moving: bool },
     /// An odometry goal for an exploration turn or search leg.
     MoveGoal(MoveQuery),
-    /// One local-planner step toward `goal` on this frame's depth and no-go points.
-    Drive { goal: Goal },
+    /// One local-planner step toward `goal` on this frame's depth, keeping
+    /// clear of the frame's `obstacles` (as `Perceive` found them; none when
+    /// nothing was perceived on this frame).
+    Drive { goal: Goal, obstacles: Obstacles },
 }
 
 /// The stages' answer to a [`Request`].
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) enum Reply {
-    StepStarted { goal: Option<Goal> },
-    Perceived { boxes: Vec<Detection> },
+    StepStarted {
+        goal: Option<Goal>,
+    },
+    /// The boxes asked for (none outside a FIND) and what the local planner
+    /// must keep clear of.
+    Perceived {
+        boxes: Vec<Detection>,
+        obstacles: Obstacles,
+    },
     Identified(Vec<Identity>),
     Located(Estimate),
     Goal(Goal),
-    Driven(DriveAnswer),
+    /// The local planner's step and the primitive it chose (`base_link`),
+    /// which only the live view draws.
+    Driven {
+        answer: DriveAnswer,
+        path: Vec<[f64; 2]>,
+    },
 }
 
 /// A stage service failed for this frame.
@@ -272,6 +286,8 @@ pub(crate) struct Mission {
     started: bool,
     /// The frame being handled and where its work stands.
     frame: Frame,
+    /// What this frame's perception found for its local-planner step.
+    obstacles: Obstacles,
     pending: Option<Pending>,
     events: Vec<Stamped>,
 }
@@ -303,6 +319,7 @@ impl Mission {
             outage: None,
             started: false,
             frame: Frame::default(),
+            obstacles: Obstacles::default(),
             pending: None,
             events: Vec::new(),
         }
@@ -359,9 +376,15 @@ impl Mission {
         Next::Call(request)
     }
 
+    /// A local-planner step toward `goal`, clear of this frame's obstacles.
+    fn drive(&self, goal: Goal) -> Request {
+        Request::Drive { goal, obstacles: self.obstacles.clone() }
+    }
+
     /// A new sensor frame: the start of one control cycle.
     pub(crate) fn on_frame(&mut self, p: &ExecutorParams, frame: Frame) -> Next {
         self.pending = None;
+        self.obstacles = Obstacles::default();
         if self.awaiting.is_some() {
             return Next::Done(Command { twist: Twist::ZERO, active: false, finished: None });
         }
@@ -549,19 +572,22 @@ impl Mission {
     }
 
     /// The stages' answer to the last request.
-    pub(crate) fn on_reply(&mut self, p: &ExecutorParams, reply: Reply) -> Next {
+    pub(crate) fn on_reply(&mut self, p: &ExecutorParams, mut reply: Reply) -> Next {
+        if let Reply::Perceived { obstacles, .. } = &mut reply {
+            self.obstacles = std::mem::take(obstacles);
+        }
         let Some(pending) = self.pending.take() else { return self.hold() };
         match (pending, reply) {
             (Pending::Start { step, anchor, d_s }, Reply::StepStarted { goal }) => {
                 self.step_started(p, step, anchor, d_s, goal)
             }
             (Pending::DrivePerceived { goal }, Reply::Perceived { .. }) => {
-                self.call(Pending::DrivePlanned { goal }, Request::Drive { goal })
+                self.call(Pending::DrivePlanned { goal }, self.drive(goal))
             }
-            (Pending::DrivePlanned { goal } | Pending::FindPlanned { goal }, Reply::Driven(answer)) => {
+            (Pending::DrivePlanned { goal } | Pending::FindPlanned { goal }, Reply::Driven { answer, .. }) => {
                 self.drive_outcome(p, &goal, answer)
             }
-            (Pending::FindPerceived, Reply::Perceived { boxes }) => self.find_box(p, boxes),
+            (Pending::FindPerceived, Reply::Perceived { boxes, .. }) => self.find_box(p, boxes),
             (Pending::FindIdentified { boxes }, Reply::Identified(identities)) => {
                 let Some(f) = self.find() else { return self.hold() };
                 let best = identities
@@ -580,13 +606,13 @@ impl Mission {
                 let usable = matches!(est.status, EstimateStatus::Ok | EstimateStatus::Outlier) && est.goal.is_some();
                 self.observed(p, usable.then_some((detection, identity, similarity, est)))
             }
-            (Pending::FollowPlanned, Reply::Driven(answer)) => {
+            (Pending::FollowPlanned, Reply::Driven { answer, .. }) => {
                 // Following: being within d_s is where we want to stay, not the end.
                 let twist = if answer.status == DriveStatus::Reached { Twist::ZERO } else { answer.cmd };
                 self.done(twist, None)
             }
             (Pending::ExploreGoal(what), Reply::Goal(goal)) => self.explore_goal(what, goal),
-            (Pending::ExploreDriven(state), Reply::Driven(answer)) => self.explore_driven(p, state, answer),
+            (Pending::ExploreDriven(state), Reply::Driven { answer, .. }) => self.explore_driven(p, state, answer),
             (pending, reply) => {
                 tracing::error!(mission = %self.mission_id, ?pending, ?reply, "a stage reply that answers nothing asked");
                 self.on_stage_error(StageFailure { stage: "gateway", message: "an answer out of order".into() })
