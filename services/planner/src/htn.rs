@@ -2762,7 +2762,13 @@ pub fn stated(text: &str) -> Stated {
             turn(*a, spoken(&clause));
         }
         out.durations.extend(&q.durations);
+        // "the left chair" describes a thing; "left", "take a left" and
+        // "go left" turn.
+        let described = !turns
+            && !drives
+            && (has_seq(&ws, &["the", "left"]).is_some() || has_seq(&ws, &["the", "right"]).is_some());
         if q.angles.is_empty()
+            && !described
             && let Some(a) = turn_magnitude(&ws, &q)
         {
             turn(a, spoken(&clause));

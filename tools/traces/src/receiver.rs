@@ -167,7 +167,9 @@ pub async fn serve_receiver_with(
         // The runtime's own handshakes (crates/runtime/src/tls.rs): the
         // certificate is read again when its files change.
         Some(tls) => {
-            router.serve_with_incoming_shutdown(tls.incoming(listener, shutdown.clone()), shutdown.cancelled_owned()).await?
+            router
+                .serve_with_incoming_shutdown(tls.incoming(listener, shutdown.clone()), shutdown.cancelled_owned())
+                .await?
         }
         None => {
             router
