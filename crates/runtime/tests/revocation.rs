@@ -12,39 +12,26 @@ use std::time::Duration;
 
 use tokio::sync::mpsc;
 use tokio_stream::StreamExt as _;
-use tonic::{Code, Request, Response, Status, Streaming};
+use tonic::{Code, Status, Streaming};
 use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
 use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;
 use tonic_reflection::pb::v1::{ServerReflectionRequest, ServerReflectionResponse};
+use vlnav_proto::v1::GetModelInfoRequest;
 use vlnav_proto::v1::detector_service_client::DetectorServiceClient;
-use vlnav_proto::v1::detector_service_server::{DetectorService, DetectorServiceServer};
-use vlnav_proto::v1::{DetectRequest, DetectResponse, GetModelInfoRequest, ModelInfo};
+use vlnav_proto::v1::detector_service_server::DetectorServiceServer;
 use vlnav_runtime::CallerPolicy;
 use vlnav_runtime::client::{TracedChannel, channel_with};
 use vlnav_runtime::revocation::{CertificateId, RevocationList, Revoked};
 use vlnav_runtime::security::{ClientSecurity, ClientTls, DevPki, robot_identity};
 use vlnav_runtime::server::{ServerConfig, ServiceSet};
-use vlnav_runtime::testing::{TestServer, start};
+use vlnav_runtime::testing::{StubDetector, TestServer, start};
 use vlnav_runtime::tls::{RELOAD_INTERVAL, ServerTls};
-
-#[derive(Clone)]
-struct Stub;
-
-#[tonic::async_trait]
-impl DetectorService for Stub {
-    async fn detect(&self, _: Request<DetectRequest>) -> Result<Response<DetectResponse>, Status> {
-        Err(Status::invalid_argument("the stub detects nothing"))
-    }
-    async fn get_model_info(&self, _: Request<GetModelInfoRequest>) -> Result<Response<ModelInfo>, Status> {
-        Ok(Response::new(ModelInfo { model: "stub".into(), ..Default::default() }))
-    }
-}
 
 /// A stage (only the gateway may call it) with health and reflection, which
 /// every certificate may use: reflection is the bidirectional stream here.
 async fn stage(pki: &DevPki) -> TestServer {
     let cfg = ServerConfig { tls: pki.server_args(), ..Default::default() };
-    let set = ServiceSet::new().add("detect", DetectorServiceServer::new(Stub)).callers(CallerPolicy::stages());
+    let set = ServiceSet::new().add("detect", DetectorServiceServer::new(StubDetector)).callers(CallerPolicy::stages());
     start(&cfg, set).await.unwrap()
 }
 
