@@ -28,17 +28,18 @@ use crate::auth::{AuthLayer, Caller, TokenStore};
 
 use crate::config::GatewayOptions;
 use crate::executor::MissionRun;
-use crate::frames::{self, FrameError};
 use crate::hub::{Hub, is_terminal};
 use crate::pipeline::Pipeline;
-use crate::robot::{Fleet, RobotMsg};
+use crate::robot::Fleet;
 use crate::store::Store;
 
 /// Longest accepted typed instruction, bytes.
-pub const MAX_INSTRUCTION_BYTES: usize = 4096;
+pub(crate) const MAX_INSTRUCTION_BYTES: usize = 4096;
 /// Audio is streamed to ingress in chunks of this size.
 const AUDIO_CHUNK: usize = 64 * 1024;
 
+/// The gateway's MissionService and FleetService, over its robots' actors,
+/// the mission store and the stage clients.
 #[derive(Clone)]
 pub struct Gateway {
     fleet: Arc<Fleet>,
@@ -51,6 +52,8 @@ pub struct Gateway {
 }
 
 impl Gateway {
+    /// Opens the mission store in `opts.data_dir`, connects (lazily) to the
+    /// stages, reads the token file and starts the live view and recordings.
     pub fn new(opts: &GatewayOptions) -> anyhow::Result<Self> {
         let store = Store::open(&opts.data_dir)?;
         let hub = Hub::open(store)?;
@@ -80,8 +83,14 @@ impl Gateway {
         }
     }
 
-    pub fn fleet(&self) -> &Arc<Fleet> {
-        &self.fleet
+    /// Where the live view listens (`None`: off).
+    pub fn live_view_addr(&self) -> Option<std::net::SocketAddr> {
+        self.fleet.viz().live_addr()
+    }
+
+    /// Waits until every frame handed to the live view and the recordings is written.
+    pub fn flush_view(&self) {
+        self.fleet.viz().flush();
     }
 
     fn hub(&self) -> &Arc<Hub> {
@@ -521,10 +530,6 @@ fn unix_now() -> f64 {
     std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).unwrap_or(0.0)
 }
 
-fn frame_status(robot: &str, e: &FrameError) -> Status {
-    Status::invalid_argument(format!("robot '{robot}', {e}; the stream is closed and the robot is held stopped"))
-}
-
 #[tonic::async_trait]
 impl FleetService for Gateway {
     type AttachStream = CommandStream;
@@ -569,95 +574,7 @@ impl FleetService for Gateway {
         let conn = self.fleet.next_conn();
         let robot = hello.robot_id.clone();
         let mailbox = self.fleet.attach(hello, tx.clone(), conn).await?;
-        tokio::spawn(async move {
-            let mut last_stamp = None;
-            let reason = loop {
-                let msg = match inbound.message().await {
-                    Ok(Some(m)) => m,
-                    Ok(None) => break "the edge agent closed the stream".to_string(),
-                    Err(s) => {
-                        let status = if s.code() == tonic::Code::OutOfRange && s.message().contains("too large") {
-                            Status::resource_exhausted(format!(
-                                "robot '{robot}': a message exceeded the gateway's size limit ({}); lower the camera \
-                                 resolution or raise VLNAV_MAX_MESSAGE_BYTES on the gateway",
-                                s.message()
-                            ))
-                        } else {
-                            s
-                        };
-                        let reason = format!("stream error: {}", status.message());
-                        let _ = tx.send(Err(status)).await;
-                        break reason;
-                    }
-                };
-                let sent = match msg.kind {
-                    Some(edge_message::Kind::Frame(mut frame)) => {
-                        // Decoding RVL depth takes a millisecond or more: off the async workers.
-                        let mut decoded = Ok(());
-                        if let Some(mut f) = frame.frame.take() {
-                            if frames::is_encoded(&f) {
-                                let job = tokio::task::spawn_blocking(move || {
-                                    let r = frames::decode_depth(&mut f);
-                                    (f, r)
-                                });
-                                match job.await {
-                                    Ok((back, r)) => {
-                                        f = back;
-                                        decoded = r;
-                                    }
-                                    Err(e) => {
-                                        let status =
-                                            Status::internal(format!("robot '{robot}': the depth decoder failed: {e}"));
-                                        let _ = tx.send(Err(status)).await;
-                                        break format!("depth decoder failed: {e}");
-                                    }
-                                }
-                            }
-                            frame.frame = Some(f);
-                        }
-                        let checked = match frame.frame.as_mut() {
-                            None => Err(FrameError::Missing { seq: 0, field: "frame" }),
-                            Some(f) if !f.robot_id.is_empty() && f.robot_id != robot => Err(FrameError::Invalid {
-                                seq: f.seq,
-                                what: format!("robot_id '{}' differs from the attached robot", f.robot_id),
-                            }),
-                            Some(f) => decoded.and_then(|()| frames::check_frame(f, last_stamp)).map(|()| f.stamp),
-                        };
-                        match checked {
-                            Ok(stamp) => {
-                                last_stamp = Some(stamp);
-                                mailbox.tell(RobotMsg::Frame { conn, frame: Box::new(frame) }).await
-                            }
-                            Err(e) => {
-                                tracing::warn!(robot = %robot, "rejected frame: {e}");
-                                let _ = tx.send(Err(frame_status(&robot, &e))).await;
-                                break format!("invalid frame: {e}");
-                            }
-                        }
-                    }
-                    Some(edge_message::Kind::Odometry(o)) => {
-                        if let Some(p) = &o.pose
-                            && let Err(e) = frames::check_pose(0, p)
-                        {
-                            let _ = tx.send(Err(frame_status(&robot, &e))).await;
-                            break format!("invalid odometry: {e}");
-                        }
-                        mailbox.tell(RobotMsg::Odometry { conn, odometry: o }).await
-                    }
-                    Some(edge_message::Kind::Status(s)) => mailbox.tell(RobotMsg::Status { conn, status: s }).await,
-                    Some(edge_message::Kind::Hello(_)) => {
-                        let _ = tx.send(Err(Status::invalid_argument("EdgeHello may only be sent once, first"))).await;
-                        break "a second hello".to_string();
-                    }
-                    None => Ok(()),
-                };
-                if sent.is_err() {
-                    let _ = tx.send(Err(Status::unavailable("the robot's actor stopped; reconnect"))).await;
-                    break "the robot actor stopped".to_string();
-                }
-            };
-            let _ = mailbox.tell(RobotMsg::Detach { conn, reason }).await;
-        });
+        crate::link::spawn(inbound, robot, conn, mailbox, tx);
         Ok(Response::new(ReceiverStream::new(rx)))
     }
 

@@ -27,12 +27,15 @@ use tonic::server::NamedService;
 use vlnav_runtime::authz::{CallerPolicy, Callers, Methods};
 
 /// How often a request may look at the token file again.
-pub const RELOAD_EVERY: Duration = Duration::from_secs(1);
+pub(crate) const RELOAD_EVERY: Duration = Duration::from_secs(1);
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
+/// What a token's holder may do (docs/security.md).
 pub enum Role {
+    /// Reads missions and robots.
     Viewer,
+    /// Also submits, answers and cancels missions.
     Operator,
 }
 
@@ -51,6 +54,7 @@ impl Role {
 pub struct TokenEntry {
     /// Who holds it: recorded as the caller in the audit trail.
     pub name: String,
+    /// What its holder may do.
     pub role: Role,
     /// SHA-256 of the token, hex (`vlnav_runtime::security::token_hash`).
     pub sha256: String,
@@ -62,14 +66,18 @@ pub struct TokenEntry {
     pub expires_unix: Option<f64>,
 }
 
+/// The token file (`--tokens-file`, TOML): one `[[token]]` per entry.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TokenFile {
+    /// Every token the gateway accepts.
     #[serde(default, rename = "token")]
     pub tokens: Vec<TokenEntry>,
 }
 
 impl TokenFile {
+    /// The file read from `text`; an entry whose `sha256` is not 64 hex
+    /// digits is refused (a token pasted in place of its hash), naming `path`.
     pub fn parse(text: &str, path: &Path) -> anyhow::Result<Self> {
         let file: TokenFile = toml::from_str(text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         for t in &file.tokens {
@@ -85,6 +93,7 @@ impl TokenFile {
         Ok(file)
     }
 
+    /// The file as written to disk, with a header saying how to edit it.
     pub fn to_toml(&self) -> String {
         let body = toml::to_string(self).unwrap_or_default();
         format!(
@@ -97,24 +106,24 @@ impl TokenFile {
 /// The authenticated caller of a request, put into its extensions by
 /// [`AuthLayer`] for handlers to scope and audit.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Caller {
-    pub name: String,
-    pub role: Role,
-    pub robots: Option<Vec<String>>,
+pub(crate) struct Caller {
+    pub(crate) name: String,
+    pub(crate) role: Role,
+    pub(crate) robots: Option<Vec<String>>,
 }
 
 impl Caller {
     /// The caller when the gateway runs without authentication.
-    pub fn anonymous() -> Self {
+    pub(crate) fn anonymous() -> Self {
         Self { name: "anonymous (no authentication configured)".into(), role: Role::Operator, robots: None }
     }
 
-    pub fn may_act_on(&self, robot_id: &str) -> bool {
+    pub(crate) fn may_act_on(&self, robot_id: &str) -> bool {
         self.robots.as_ref().is_none_or(|r| r.iter().any(|x| x == robot_id))
     }
 
     /// PERMISSION_DENIED unless the caller may act on `robot_id`.
-    pub fn check_robot(&self, robot_id: &str, what: &str) -> Result<(), Status> {
+    pub(crate) fn check_robot(&self, robot_id: &str, what: &str) -> Result<(), Status> {
         if self.may_act_on(robot_id) {
             return Ok(());
         }
@@ -126,13 +135,13 @@ impl Caller {
     }
 
     /// The caller a handler sees (anonymous when no layer ran).
-    pub fn of<T>(request: &tonic::Request<T>) -> Caller {
+    pub(crate) fn of<T>(request: &tonic::Request<T>) -> Caller {
         request.extensions().get::<Caller>().cloned().unwrap_or_else(Caller::anonymous)
     }
 }
 
 /// Tokens by hash, read from a file and read again when it changes.
-pub struct TokenStore {
+pub(crate) struct TokenStore {
     path: PathBuf,
     state: RwLock<Loaded>,
     checked: Mutex<Instant>,
@@ -148,7 +157,7 @@ struct Loaded {
 
 impl TokenStore {
     /// Reads `path`; an unreadable or malformed file is an error at start.
-    pub fn open(path: &Path) -> anyhow::Result<Arc<Self>> {
+    pub(crate) fn open(path: &Path) -> anyhow::Result<Arc<Self>> {
         let (by_hash, stamp) = Self::read(path)?;
         tracing::info!(path = %path.display(), tokens = by_hash.len(), "bearer tokens loaded");
         Ok(Arc::new(Self {
@@ -190,7 +199,7 @@ impl TokenStore {
     }
 
     /// The caller a bearer token belongs to, or UNAUTHENTICATED saying why not.
-    pub fn authenticate(&self, token: &str) -> Result<Caller, Status> {
+    pub(crate) fn authenticate(&self, token: &str) -> Result<Caller, Status> {
         self.refresh();
         let hash = vlnav_runtime::security::token_hash(token);
         let state = self.state.read().unwrap_or_else(|e| e.into_inner());
@@ -216,7 +225,7 @@ fn file_stamp(path: &Path) -> FileStamp {
 }
 
 /// What a gRPC method needs (fails closed: unknown methods need an operator).
-pub enum Needs {
+pub(crate) enum Needs {
     /// Health, reflection: nothing.
     Nothing,
     /// A robot's certificate, checked by the handler.
@@ -224,7 +233,7 @@ pub enum Needs {
     Role(Role),
 }
 
-pub fn needs(path: &str) -> Needs {
+pub(crate) fn needs(path: &str) -> Needs {
     let (service, method) = path.trim_start_matches('/').split_once('/').unwrap_or((path, ""));
     match (service, method) {
         ("grpc.health.v1.Health", _)
@@ -243,7 +252,7 @@ pub fn needs(path: &str) -> Needs {
 /// handler checks that it names the robot attaching (a certificate-less
 /// Attach reaches the handler too, which refuses it naming the identity it
 /// needs); services' certificates may call the rest with a token.
-pub fn caller_policy() -> CallerPolicy {
+pub(crate) fn caller_policy() -> CallerPolicy {
     CallerPolicy::new()
         .allow(
             Methods::method("vlnav.v1.FleetService/Attach"),
@@ -259,23 +268,23 @@ const PEOPLE: &str = "a robot's certificate is good only for FleetService/Attach
 
 /// Checks the bearer token of every request to the wrapped services.
 #[derive(Clone)]
-pub struct AuthLayer {
+pub(crate) struct AuthLayer {
     tokens: Option<Arc<TokenStore>>,
 }
 
 impl AuthLayer {
     /// `None`: no authentication (every caller is [`Caller::anonymous`]).
-    pub fn new(tokens: Option<Arc<TokenStore>>) -> Self {
+    pub(crate) fn new(tokens: Option<Arc<TokenStore>>) -> Self {
         Self { tokens }
     }
 
     /// Whether callers authenticate (else everyone is anonymous).
-    pub fn is_on(&self) -> bool {
+    pub(crate) fn is_on(&self) -> bool {
         self.tokens.is_some()
     }
 
     /// Wraps one tonic service.
-    pub fn wrap<S>(&self, inner: S) -> Authorized<S> {
+    pub(crate) fn wrap<S>(&self, inner: S) -> Authorized<S> {
         Authorized { inner, tokens: self.tokens.clone() }
     }
 }
@@ -288,7 +297,7 @@ impl<S> tower::Layer<S> for AuthLayer {
 }
 
 #[derive(Clone)]
-pub struct Authorized<S> {
+pub(crate) struct Authorized<S> {
     inner: S,
     tokens: Option<Arc<TokenStore>>,
 }
@@ -308,7 +317,7 @@ fn method_name(path: &str) -> &str {
 }
 
 /// The caller of a request to `path` with `headers`, or the status refusing it.
-pub fn authorize(tokens: &TokenStore, path: &str, headers: &http::HeaderMap) -> Result<Option<Caller>, Status> {
+pub(crate) fn authorize(tokens: &TokenStore, path: &str, headers: &http::HeaderMap) -> Result<Option<Caller>, Status> {
     let role = match needs(path) {
         Needs::Nothing | Needs::RobotCertificate => return Ok(None),
         Needs::Role(r) => r,

@@ -1,6 +1,7 @@
 //! Gateway settings: where the stage services are, where missions persist,
 //! and the executor's parameters (docs/design.md §2, the authors' values by default).
 
+use std::net::SocketAddr;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Clone, Debug)]
@@ -41,7 +42,7 @@ pub struct GatewayOptions {
     pub submit_burst: u32,
     /// The live view and the mission recordings (docs/observability.md).
     #[command(flatten)]
-    pub view: crate::viz::ViewOptions,
+    pub view: ViewOptions,
     /// How long the executor waits for one stage call, seconds of wall
     /// time: a stage that accepted a call and never answers (a stuck
     /// handler answers HTTP/2 pings, so keepalive never ends the call) is a
@@ -53,13 +54,81 @@ pub struct GatewayOptions {
 
 /// `--stage-timeout-s` by default: as long as a stage may stay down before
 /// its mission fails (`executor::machine::STAGE_OUTAGE_S`).
-pub const DEFAULT_STAGE_TIMEOUT_S: f64 = 10.0;
+pub(crate) const DEFAULT_STAGE_TIMEOUT_S: f64 = 10.0;
 
 /// A duration in seconds that is finite and above zero.
 fn positive_seconds(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v <= 86_400.0 => Ok(v),
         _ => Err(format!("{s:?} is not a duration in seconds between 0 and 86400 (e.g. 10 or 2.5)")),
+    }
+}
+
+/// Where the live view listens and what is recorded.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ViewOptions {
+    /// Where the live view (the Foxglove WebSocket protocol) listens, or
+    /// `off`. The protocol carries no credentials, so an address other than
+    /// loopback also needs --live-view-insecure; reach a remote gateway's
+    /// view through `kubectl port-forward` or an SSH tunnel instead.
+    #[arg(long, env = "VLNAV_LIVE_VIEW", default_value = "127.0.0.1:8765")]
+    pub live_view: String,
+    /// Serve the live view on a non-loopback address: anyone who reaches it
+    /// sees every robot's camera.
+    #[arg(long, env = "VLNAV_LIVE_VIEW_INSECURE")]
+    pub live_view_insecure: bool,
+    /// Record every mission (not dry runs) to MCAP in `<data-dir>/recordings`.
+    #[arg(long, env = "VLNAV_RECORD", default_value_t = true, action = clap::ArgAction::Set)]
+    pub record: bool,
+    /// A recording continues in a new file once its file reaches this size, MiB.
+    #[arg(long, env = "VLNAV_RECORD_MAX_MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..))]
+    pub record_max_mib: u64,
+    /// The recordings directory is kept under this size, MiB: the oldest
+    /// finished recordings are deleted when a mission starts (0: keep all).
+    #[arg(long, env = "VLNAV_RECORD_BUDGET_MIB", default_value_t = 20480)]
+    pub record_budget_mib: u64,
+    /// Facts about the deployment written into every recording's
+    /// `vlnav.mission` metadata (for example the perception mode a replay
+    /// must use).
+    #[arg(skip)]
+    pub metadata: Vec<(String, String)>,
+}
+
+impl Default for ViewOptions {
+    fn default() -> Self {
+        Self {
+            live_view: "127.0.0.1:8765".into(),
+            live_view_insecure: false,
+            record: true,
+            record_max_mib: 512,
+            record_budget_mib: 20480,
+            metadata: Vec::new(),
+        }
+    }
+}
+
+impl ViewOptions {
+    /// Neither a live view nor recordings.
+    pub(crate) fn off() -> Self {
+        Self { live_view: "off".into(), record: false, ..Self::default() }
+    }
+
+    /// The live view's address, checked; `None` when it is off.
+    pub(crate) fn live_addr(&self) -> anyhow::Result<Option<SocketAddr>> {
+        if self.live_view.eq_ignore_ascii_case("off") || self.live_view.is_empty() {
+            return Ok(None);
+        }
+        let addr: SocketAddr = self.live_view.parse().map_err(|e| {
+            anyhow::anyhow!("--live-view '{}' is not an address like 127.0.0.1:8765 or `off`: {e}", self.live_view)
+        })?;
+        if !addr.ip().is_loopback() && !self.live_view_insecure {
+            anyhow::bail!(
+                "refusing to serve the live view on {addr}: the Foxglove protocol carries no credentials, so anyone \
+                 who reaches it would see every robot's camera. Keep it on loopback and reach it through \
+                 `kubectl port-forward` or an SSH tunnel, or pass --live-view-insecure"
+            );
+        }
+        Ok(Some(addr))
     }
 }
 
@@ -160,7 +229,7 @@ impl GatewayOptions {
             tokens_file: None,
             stage_tls: Default::default(),
             executor: ExecutorParams::default(),
-            view: crate::viz::ViewOptions::off(),
+            view: ViewOptions::off(),
             submit_per_minute: 60,
             submit_burst: 20,
             stage_timeout_s: DEFAULT_STAGE_TIMEOUT_S,
@@ -192,12 +261,19 @@ impl GatewayOptions {
 /// Loopback ports of the stage services.
 #[derive(Clone, Copy, Debug)]
 pub struct StagePorts {
+    /// The ingress (speech to text).
     pub ingress: u16,
+    /// The planner.
     pub planner: u16,
+    /// The detector.
     pub detector: u16,
+    /// The ReID service.
     pub reid: u16,
+    /// The segmenter.
     pub segmenter: u16,
+    /// The subgoal estimator.
     pub subgoal: u16,
+    /// The local planner.
     pub local_planner: u16,
 }
 

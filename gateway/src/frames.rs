@@ -1,22 +1,56 @@
-//! Checks of what an edge agent sends, before anything acts on it.
+//! Checks of what an edge agent sends, before anything acts on it. A frame
+//! is checked once, where it enters the gateway (`link.rs`), into a
+//! [`CheckedFrame`]: the robot's actor, the executor and the live view take
+//! only that type, so none of them checks a frame again.
 
-use vlnav_proto::v1::{DepthEncoding, ImageEncoding, Pose2D, RgbdFrame};
+use vlnav_geometry::camera::Camera;
+use vlnav_proto::v1::{DepthEncoding, ImageEncoding, Pose2D, RgbdFrame, SensorFrame, SimTruth};
 
 /// Largest accepted image side, pixels.
 pub const MAX_SIDE: u32 = 4096;
 
+/// Why a frame (or an odometry update) was refused; each names the frame's
+/// `seq` and says what was expected.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum FrameError {
+    /// A part the gateway needs is absent.
     #[error("frame {seq}: {field} is missing")]
-    Missing { seq: u64, field: &'static str },
+    Missing {
+        /// The frame's sequence number.
+        seq: u64,
+        /// The absent field.
+        field: &'static str,
+    },
+    /// A number is NaN or infinite.
     #[error("frame {seq}: {field} is not a finite number ({value})")]
-    NotFinite { seq: u64, field: &'static str, value: f64 },
+    NotFinite {
+        /// The frame's sequence number.
+        seq: u64,
+        /// The field.
+        field: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// Sizes, encodings or the camera model do not add up.
     #[error("frame {seq}: {what}")]
-    Invalid { seq: u64, what: String },
+    Invalid {
+        /// The frame's sequence number.
+        seq: u64,
+        /// What is wrong and what was expected.
+        what: String,
+    },
+    /// Sensor time went backwards.
     #[error(
         "frame {seq}: stamp {stamp} s is older than the previous frame's {previous} s; sensor time must not go backwards"
     )]
-    StampBackwards { seq: u64, stamp: f64, previous: f64 },
+    StampBackwards {
+        /// The frame's sequence number.
+        seq: u64,
+        /// Its stamp, seconds.
+        stamp: f64,
+        /// The previous frame's stamp, seconds.
+        previous: f64,
+    },
 }
 
 fn finite(seq: u64, field: &'static str, value: f64) -> Result<(), FrameError> {
@@ -31,14 +65,14 @@ pub fn check_pose(seq: u64, pose: &Pose2D) -> Result<(), FrameError> {
 }
 
 /// Whether the frame's depth needs [`decode_depth`] (anything but raw).
-pub fn is_encoded(frame: &RgbdFrame) -> bool {
+pub(crate) fn is_encoded(frame: &RgbdFrame) -> bool {
     frame.depth.as_ref().is_some_and(|d| d.encoding != DepthEncoding::RawU16 as i32)
 }
 
 /// Decodes RVL depth (the robot link's codec, docs/architecture.md "Frames")
 /// in place, so that everything past the gateway reads raw u16 millimetres.
 /// The declared size bounds what is decoded, whatever the stream says.
-pub fn decode_depth(frame: &mut RgbdFrame) -> Result<(), FrameError> {
+pub(crate) fn decode_depth(frame: &mut RgbdFrame) -> Result<(), FrameError> {
     let seq = frame.seq;
     let Some(depth) = frame.depth.as_mut() else { return Ok(()) };
     match DepthEncoding::try_from(depth.encoding) {
@@ -64,9 +98,55 @@ pub fn decode_depth(frame: &mut RgbdFrame) -> Result<(), FrameError> {
     }
 }
 
+/// A sensor frame that passed [`check_frame`] (its depth decoded first,
+/// [`decode_depth`]), with the camera model the check read from it.
+#[derive(Clone, Debug)]
+pub struct CheckedFrame {
+    frame: RgbdFrame,
+    truth: Option<SimTruth>,
+    camera: Camera,
+}
+
+impl CheckedFrame {
+    /// Checks `sensor`'s frame as [`check_frame`] does; a message without a
+    /// frame is refused as missing one.
+    pub fn check(sensor: SensorFrame, previous_stamp: Option<f64>) -> Result<Self, FrameError> {
+        let SensorFrame { frame, truth } = sensor;
+        let frame = frame.ok_or(FrameError::Missing { seq: 0, field: "frame" })?;
+        let camera = check(&frame, previous_stamp)?;
+        Ok(Self { frame, truth, camera })
+    }
+
+    /// The checked frame.
+    pub fn frame(&self) -> &RgbdFrame {
+        &self.frame
+    }
+
+    /// The simulator's ground truth sent with the frame, if any (not checked:
+    /// it is read only for the evaluation's metrics).
+    pub(crate) fn truth(&self) -> Option<&SimTruth> {
+        self.truth.as_ref()
+    }
+
+    /// The frame's camera model, as every stage reads it.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// The message as the robot sent it (depth decoded).
+    pub(crate) fn into_sensor(self) -> SensorFrame {
+        SensorFrame { frame: Some(self.frame), truth: self.truth }
+    }
+}
+
 /// Validates a sensor frame: camera model, image sizes against the camera,
 /// finite pose and velocity, and a stamp not older than `previous_stamp`.
 pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(), FrameError> {
+    check(frame, previous_stamp).map(|_| ())
+}
+
+/// [`check_frame`], returning the camera model it read.
+fn check(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<Camera, FrameError> {
     let seq = frame.seq;
     finite(seq, "stamp", frame.stamp)?;
     if frame.stamp < 0.0 {
@@ -102,8 +182,9 @@ pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(),
     finite(seq, "camera.intrinsics.cy", k.cy)?;
     // The rest of the camera model (mount, depth range) as the executor and every stage read
     // it: a frame accepted here has a camera they accept.
-    vlnav_geometry::convert::camera_from_proto(Some(cam), "camera", vlnav_geometry::convert::DepthDefaults::UNSET)
-        .map_err(|e| FrameError::Invalid { seq, what: e.to_string() })?;
+    let camera =
+        vlnav_geometry::convert::camera_from_proto(Some(cam), "camera", vlnav_geometry::convert::DepthDefaults::UNSET)
+            .map_err(|e| FrameError::Invalid { seq, what: e.to_string() })?;
     let pixels = w as usize * h as usize;
     let depth = frame.depth.as_ref().ok_or(FrameError::Missing { seq, field: "depth" })?;
     if depth.encoding != DepthEncoding::RawU16 as i32 {
@@ -167,7 +248,7 @@ pub fn check_frame(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<(),
             ),
         });
     }
-    Ok(())
+    Ok(camera)
 }
 
 #[cfg(test)]

@@ -10,7 +10,7 @@ use vlnav_proto::v1::{Finished, Mission, MissionEvent, MissionState, mission_eve
 
 use crate::store::{Store, StoreError};
 
-pub fn is_terminal(state: MissionState) -> bool {
+pub(crate) fn is_terminal(state: MissionState) -> bool {
     matches!(state, MissionState::Succeeded | MissionState::Failed | MissionState::Cancelled | MissionState::Planned)
 }
 
@@ -20,26 +20,26 @@ struct Entry {
     live: broadcast::Sender<MissionEvent>,
 }
 
-pub struct Hub {
+pub(crate) struct Hub {
     entries: Mutex<HashMap<String, Entry>>,
     store: Store,
 }
 
 /// What a new watcher gets: the log so far and the live feed after it.
-pub struct Watch {
-    pub backlog: Vec<MissionEvent>,
-    pub live: broadcast::Receiver<MissionEvent>,
-    pub finished: bool,
+pub(crate) struct Watch {
+    pub(crate) backlog: Vec<MissionEvent>,
+    pub(crate) live: broadcast::Receiver<MissionEvent>,
+    pub(crate) finished: bool,
 }
 
 /// Why an unfinished mission found at start-up is not resumed.
-pub const RESTART_REASON: &str = "the gateway restarted while this mission was unfinished; it is not resumed \
+pub(crate) const RESTART_REASON: &str = "the gateway restarted while this mission was unfinished; it is not resumed \
 because the robot may have moved and its odometry anchor and target estimates are gone — submit it again";
 
 impl Hub {
     /// Loads every stored mission. Unfinished ones are marked FAILED (see
     /// [`RESTART_REASON`]) with a `Finished` event, so watchers and lists agree.
-    pub fn open(store: Store) -> Result<Arc<Self>, StoreError> {
+    pub(crate) fn open(store: Store) -> Result<Arc<Self>, StoreError> {
         let mut entries = HashMap::new();
         for mut mission in store.missions()? {
             let mut events = store.events(&mission.mission_id)?;
@@ -71,19 +71,19 @@ impl Hub {
         self.entries.lock().unwrap_or_else(|p| p.into_inner())
     }
 
-    pub fn create(&self, mission: Mission) -> Result<(), StoreError> {
+    pub(crate) fn create(&self, mission: Mission) -> Result<(), StoreError> {
         self.store.save(&mission, None)?;
         let (live, _) = broadcast::channel(256);
         self.lock().insert(mission.mission_id.clone(), Entry { mission, events: Vec::new(), live });
         Ok(())
     }
 
-    pub fn get(&self, id: &str) -> Option<Mission> {
+    pub(crate) fn get(&self, id: &str) -> Option<Mission> {
         self.lock().get(id).map(|e| e.mission.clone())
     }
 
     /// Newest first, optionally for one robot.
-    pub fn list(&self, robot_id: &str, limit: usize) -> Vec<Mission> {
+    pub(crate) fn list(&self, robot_id: &str, limit: usize) -> Vec<Mission> {
         let mut out: Vec<Mission> = self
             .lock()
             .values()
@@ -97,7 +97,7 @@ impl Hub {
 
     /// Changes a mission and, optionally, appends an event — persisted
     /// together, then broadcast. A `Finished` event also sets the state.
-    pub fn record(
+    pub(crate) fn record(
         &self,
         id: &str,
         stamp: f64,
@@ -128,7 +128,7 @@ impl Hub {
         Ok(mission)
     }
 
-    pub fn watch(&self, id: &str) -> Option<Watch> {
+    pub(crate) fn watch(&self, id: &str) -> Option<Watch> {
         let entries = self.lock();
         let entry = entries.get(id)?;
         Some(Watch {
@@ -139,7 +139,7 @@ impl Hub {
     }
 
     /// Events after `seq`, for a watcher that lagged behind the live feed.
-    pub fn events_after(&self, id: &str, seq: u64) -> Vec<MissionEvent> {
+    pub(crate) fn events_after(&self, id: &str, seq: u64) -> Vec<MissionEvent> {
         self.lock().get(id).map(|e| e.events.iter().filter(|ev| ev.seq > seq).cloned().collect()).unwrap_or_default()
     }
 }

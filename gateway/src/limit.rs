@@ -13,7 +13,7 @@ use std::time::Instant;
 /// Callers remembered before idle (full) buckets are forgotten.
 const MAX_CALLERS: usize = 10_000;
 
-pub struct RateLimiter {
+pub(crate) struct RateLimiter {
     per_second: f64,
     burst: f64,
     buckets: Mutex<HashMap<String, (f64, Instant)>>,
@@ -21,13 +21,13 @@ pub struct RateLimiter {
 
 impl RateLimiter {
     /// `per_minute` = 0 admits everything.
-    pub fn new(per_minute: u32, burst: u32) -> Self {
+    pub(crate) fn new(per_minute: u32, burst: u32) -> Self {
         Self { per_second: per_minute as f64 / 60.0, burst: burst.max(1) as f64, buckets: Mutex::new(HashMap::new()) }
     }
 
     /// Admits one request from `key` at `now`, or says how many seconds until
     /// one would be admitted.
-    pub fn check(&self, key: &str, now: Instant) -> Result<(), f64> {
+    pub(crate) fn check(&self, key: &str, now: Instant) -> Result<(), f64> {
         if self.per_second <= 0.0 {
             return Ok(());
         }
@@ -47,11 +47,11 @@ impl RateLimiter {
         }
     }
 
-    pub fn per_minute(&self) -> f64 {
+    pub(crate) fn per_minute(&self) -> f64 {
         self.per_second * 60.0
     }
 
-    pub fn burst(&self) -> u32 {
+    pub(crate) fn burst(&self) -> u32 {
         self.burst as u32
     }
 }

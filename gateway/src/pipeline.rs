@@ -13,16 +13,16 @@ use vlnav_runtime::security::ClientSecurity;
 use crate::config::GatewayOptions;
 
 #[derive(Clone)]
-pub struct Pipeline {
-    pub ingress: IngressServiceClient<TracedChannel>,
-    pub planner: PlannerServiceClient<TracedChannel>,
-    pub detector: DetectorServiceClient<TracedChannel>,
-    pub reid: ReidServiceClient<TracedChannel>,
-    pub segmenter: SegmenterServiceClient<TracedChannel>,
-    pub subgoal: SubgoalServiceClient<TracedChannel>,
-    pub local_planner: LocalPlannerServiceClient<TracedChannel>,
+pub(crate) struct Pipeline {
+    pub(crate) ingress: IngressServiceClient<TracedChannel>,
+    pub(crate) planner: PlannerServiceClient<TracedChannel>,
+    pub(crate) detector: DetectorServiceClient<TracedChannel>,
+    pub(crate) reid: ReidServiceClient<TracedChannel>,
+    pub(crate) segmenter: SegmenterServiceClient<TracedChannel>,
+    pub(crate) subgoal: SubgoalServiceClient<TracedChannel>,
+    pub(crate) local_planner: LocalPlannerServiceClient<TracedChannel>,
     /// The deadline of each call the executor makes (`--stage-timeout-s`).
-    pub stage_timeout: std::time::Duration,
+    pub(crate) stage_timeout: std::time::Duration,
 }
 
 /// Frames are large; allow what a 4096² RGB-D frame needs.
@@ -41,7 +41,7 @@ macro_rules! stage_client {
 
 impl Pipeline {
     /// Lazily connecting clients: services may start after the gateway.
-    pub fn connect(opts: &GatewayOptions) -> anyhow::Result<Self> {
+    pub(crate) fn connect(opts: &GatewayOptions) -> anyhow::Result<Self> {
         let security = ClientSecurity::new(opts.stage_tls.load()?, None);
         let s = &security;
         Ok(Self {

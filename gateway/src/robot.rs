@@ -9,20 +9,21 @@ use tokio::sync::{mpsc, oneshot};
 use tonic::Status;
 use tracing::Instrument;
 use vlnav_proto::v1::{
-    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, MissionAnnouncement, OdometryUpdate, RobotInfo,
-    SensorFrame, Twist2D, VelocityCommand, gateway_command,
+    ActionStep, Clarification, EdgeHello, EdgeStatus, GatewayCommand, MissionAnnouncement, MissionEvent,
+    OdometryUpdate, RobotInfo, Twist2D, VelocityCommand, gateway_command,
 };
 use vlnav_runtime::actor::Mailbox;
 
 use crate::config::ExecutorParams;
-use crate::executor::{Ctx, MissionRun, Seen};
+use crate::executor::{Ctx, EventSink, MissionRun, Seen};
+use crate::frames::CheckedFrame;
 use crate::hub::Hub;
 use crate::pipeline::Pipeline;
 use crate::viz::{FrameView, MissionView, Viz};
 
-pub type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
+pub(crate) type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
 
-pub enum RobotMsg {
+pub(crate) enum RobotMsg {
     Attach {
         hello: EdgeHello,
         outbound: Outbound,
@@ -31,7 +32,7 @@ pub enum RobotMsg {
     },
     Frame {
         conn: u64,
-        frame: Box<SensorFrame>,
+        frame: Box<CheckedFrame>,
     },
     Odometry {
         conn: u64,
@@ -71,7 +72,7 @@ pub enum RobotMsg {
 type RobotEntry = (Mailbox<RobotMsg>, Arc<Mutex<RobotInfo>>);
 
 /// Every robot the gateway has seen, connected or not.
-pub struct Fleet {
+pub(crate) struct Fleet {
     robots: Mutex<HashMap<String, RobotEntry>>,
     hub: Arc<Hub>,
     pipeline: Pipeline,
@@ -81,17 +82,17 @@ pub struct Fleet {
 }
 
 impl Fleet {
-    pub fn new(hub: Arc<Hub>, pipeline: Pipeline, params: ExecutorParams, viz: Viz) -> Arc<Self> {
+    pub(crate) fn new(hub: Arc<Hub>, pipeline: Pipeline, params: ExecutorParams, viz: Viz) -> Arc<Self> {
         Arc::new(Self { robots: Mutex::new(HashMap::new()), hub, pipeline, params, viz, next_conn: 1.into() })
     }
 
     /// The live view and recordings.
-    pub fn viz(&self) -> &Viz {
+    pub(crate) fn viz(&self) -> &Viz {
         &self.viz
     }
 
     fn ctx(&self) -> Ctx<'_> {
-        Ctx { pipeline: &self.pipeline, params: &self.params, hub: &self.hub, viz: &self.viz }
+        Ctx { pipeline: &self.pipeline, params: &self.params, hub: &self.hub, events: &self.viz }
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, RobotEntry>> {
@@ -144,11 +145,11 @@ impl Fleet {
         }
     }
 
-    pub fn next_conn(&self) -> u64 {
+    pub(crate) fn next_conn(&self) -> u64 {
         self.next_conn.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
     }
 
-    pub async fn attach(
+    pub(crate) async fn attach(
         self: &Arc<Self>,
         hello: EdgeHello,
         outbound: Outbound,
@@ -159,12 +160,12 @@ impl Fleet {
         Ok(mb)
     }
 
-    pub async fn reserve(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
+    pub(crate) async fn reserve(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
         let mb = self.connected(robot_id)?;
         mb.call(|reply| RobotMsg::Reserve { mission_id: mission_id.to_string(), reply }).await?
     }
 
-    pub async fn release(&self, robot_id: &str, mission_id: &str) {
+    pub(crate) async fn release(&self, robot_id: &str, mission_id: &str) {
         let mb = self.lock().get(robot_id).map(|(mb, _)| mb.clone());
         if let Some(mb) = mb {
             let _ = mb.tell(RobotMsg::Release { mission_id: mission_id.to_string() }).await;
@@ -178,17 +179,17 @@ impl Fleet {
             .ok_or_else(|| Status::not_found(format!("robot '{robot_id}' is not known to this gateway")))
     }
 
-    pub async fn start(&self, robot_id: &str, run: MissionRun) -> Result<(), Status> {
+    pub(crate) async fn start(&self, robot_id: &str, run: MissionRun) -> Result<(), Status> {
         let mb = self.any(robot_id)?;
         mb.call(|reply| RobotMsg::Start { run: Box::new(run), reply }).await?
     }
 
-    pub async fn cancel(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
+    pub(crate) async fn cancel(&self, robot_id: &str, mission_id: &str) -> Result<(), Status> {
         let mb = self.any(robot_id)?;
         mb.call(|reply| RobotMsg::Cancel { mission_id: mission_id.to_string(), reply }).await?
     }
 
-    pub async fn answer(
+    pub(crate) async fn answer(
         &self,
         robot_id: &str,
         mission_id: &str,
@@ -198,7 +199,7 @@ impl Fleet {
         mb.call(|reply| RobotMsg::Answer { mission_id: mission_id.to_string(), answer, reply }).await?
     }
 
-    pub fn list(&self) -> Vec<RobotInfo> {
+    pub(crate) fn list(&self) -> Vec<RobotInfo> {
         let mut out: Vec<RobotInfo> =
             self.lock().values().map(|(_, i)| i.lock().map(|i| i.clone()).unwrap_or_default()).collect();
         out.sort_by(|a, b| a.robot_id.cmp(&b.robot_id));
@@ -206,16 +207,27 @@ impl Fleet {
     }
 
     /// Forgets every robot: their actors end once their streams are gone.
-    pub fn close(&self) {
+    pub(crate) fn close(&self) {
         self.lock().clear();
     }
 
-    pub fn hub(&self) -> &Arc<Hub> {
+    pub(crate) fn hub(&self) -> &Arc<Hub> {
         &self.hub
     }
 
-    pub fn pipeline(&self) -> &Pipeline {
+    pub(crate) fn pipeline(&self) -> &Pipeline {
         &self.pipeline
+    }
+}
+
+/// The executor's events go to the live view and the recordings.
+impl EventSink for Viz {
+    fn wants_events(&self) -> bool {
+        self.is_on()
+    }
+
+    fn event(&self, robot_id: &str, event: MissionEvent) {
+        Viz::event(self, robot_id, event);
     }
 }
 
@@ -225,7 +237,7 @@ impl Fleet {
 /// passed over.
 fn newest_frame(
     conn: u64,
-    frame: Box<SensorFrame>,
+    frame: Box<CheckedFrame>,
     rx: &mut mpsc::Receiver<RobotMsg>,
 ) -> (RobotMsg, Vec<RobotMsg>, u64) {
     let mut newest = RobotMsg::Frame { conn, frame };
@@ -446,8 +458,8 @@ impl RobotActor {
         self.conn.as_ref().is_some_and(|(c, _)| *c == conn)
     }
 
-    async fn on_frame(&mut self, frame: SensorFrame) {
-        let Some(f) = frame.frame.as_ref() else { return };
+    async fn on_frame(&mut self, frame: CheckedFrame) {
+        let f = frame.frame();
         let stamp = f.stamp;
         self.last_stamp = Some(stamp);
         self.update(|i| {
@@ -528,7 +540,10 @@ impl RobotActor {
             let lockstep = self.lockstep();
             fleet
                 .viz
-                .frame(FrameView { robot_id: self.robot_id.clone(), frame, command, mission, seen }, lockstep)
+                .frame(
+                    FrameView { robot_id: self.robot_id.clone(), frame: frame.into_sensor(), command, mission, seen },
+                    lockstep,
+                )
                 .await;
             if finished && let Some(id) = mission_id {
                 fleet.viz.end_mission(&self.robot_id, &id);
@@ -540,16 +555,16 @@ impl RobotActor {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use vlnav_proto::v1::RgbdFrame;
 
     fn frame(conn: u64, seq: u64) -> RobotMsg {
-        let f = SensorFrame { frame: Some(RgbdFrame { seq, ..Default::default() }), truth: None };
+        let f = vlnav_proto::v1::RgbdFrame { seq, ..crate::frames::tests::frame(8, 6) };
+        let f = CheckedFrame::check(vlnav_proto::v1::SensorFrame { frame: Some(f), truth: None }, None).unwrap();
         RobotMsg::Frame { conn, frame: Box::new(f) }
     }
 
     fn seq(msg: &RobotMsg) -> Option<(u64, u64)> {
         match msg {
-            RobotMsg::Frame { conn, frame } => Some((*conn, frame.frame.as_ref().unwrap().seq)),
+            RobotMsg::Frame { conn, frame } => Some((*conn, frame.frame().seq)),
             _ => None,
         }
     }

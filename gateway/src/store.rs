@@ -12,7 +12,7 @@ const MISSIONS: TableDefinition<&str, &[u8]> = TableDefinition::new("missions");
 const EVENTS: TableDefinition<(&str, u64), &[u8]> = TableDefinition::new("events");
 
 #[derive(Debug, thiserror::Error)]
-pub enum StoreError {
+pub(crate) enum StoreError {
     #[error("mission store: {0}")]
     Db(String),
     #[error("mission store holds an undecodable record for {0}: {1}")]
@@ -24,13 +24,13 @@ macro_rules! db_err {
 }
 db_err!(redb::DatabaseError, redb::TransactionError, redb::TableError, redb::StorageError, redb::CommitError);
 
-pub struct Store {
+pub(crate) struct Store {
     db: Database,
 }
 
 impl Store {
     /// Opens (or creates) `dir/missions.redb`.
-    pub fn open(dir: &Path) -> Result<Self, StoreError> {
+    pub(crate) fn open(dir: &Path) -> Result<Self, StoreError> {
         std::fs::create_dir_all(dir).map_err(|e| StoreError::Db(format!("cannot create {}: {e}", dir.display())))?;
         let db = Database::create(dir.join("missions.redb"))?;
         let tx = db.begin_write()?;
@@ -41,7 +41,7 @@ impl Store {
     }
 
     /// Writes the mission record and, if given, one event, atomically.
-    pub fn save(&self, mission: &Mission, event: Option<&MissionEvent>) -> Result<(), StoreError> {
+    pub(crate) fn save(&self, mission: &Mission, event: Option<&MissionEvent>) -> Result<(), StoreError> {
         let tx = self.db.begin_write()?;
         {
             let mut missions = tx.open_table(MISSIONS)?;
@@ -55,7 +55,7 @@ impl Store {
         Ok(())
     }
 
-    pub fn missions(&self) -> Result<Vec<Mission>, StoreError> {
+    pub(crate) fn missions(&self) -> Result<Vec<Mission>, StoreError> {
         let tx = self.db.begin_read()?;
         let table = tx.open_table(MISSIONS)?;
         let mut out = Vec::new();
@@ -66,7 +66,7 @@ impl Store {
         Ok(out)
     }
 
-    pub fn events(&self, mission_id: &str) -> Result<Vec<MissionEvent>, StoreError> {
+    pub(crate) fn events(&self, mission_id: &str) -> Result<Vec<MissionEvent>, StoreError> {
         let tx = self.db.begin_read()?;
         let table = tx.open_table(EVENTS)?;
         let mut out = Vec::new();

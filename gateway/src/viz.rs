@@ -28,100 +28,33 @@ use foxglove::{Channel, Context, McapWriterHandle, PartialMetadata, RawChannel, 
 use prost::Message;
 use vlnav_proto::v1 as pb;
 
+use crate::config::ViewOptions;
 use crate::executor::Seen;
 use crate::hub::Hub;
 
 /// Frames waiting for the view thread beyond which a newer one is dropped.
-pub const MAX_QUEUED_FRAMES: usize = 8;
+pub(crate) const MAX_QUEUED_FRAMES: usize = 8;
 /// Frames between two checks of a recording's size.
 const SIZE_CHECK_EVERY: u64 = 25;
 
-/// Where the live view listens and what is recorded.
-#[derive(clap::Args, Clone, Debug)]
-pub struct ViewOptions {
-    /// Where the live view (the Foxglove WebSocket protocol) listens, or
-    /// `off`. The protocol carries no credentials, so an address other than
-    /// loopback also needs --live-view-insecure; reach a remote gateway's
-    /// view through `kubectl port-forward` or an SSH tunnel instead.
-    #[arg(long, env = "VLNAV_LIVE_VIEW", default_value = "127.0.0.1:8765")]
-    pub live_view: String,
-    /// Serve the live view on a non-loopback address: anyone who reaches it
-    /// sees every robot's camera.
-    #[arg(long, env = "VLNAV_LIVE_VIEW_INSECURE")]
-    pub live_view_insecure: bool,
-    /// Record every mission (not dry runs) to MCAP in `<data-dir>/recordings`.
-    #[arg(long, env = "VLNAV_RECORD", default_value_t = true, action = clap::ArgAction::Set)]
-    pub record: bool,
-    /// A recording continues in a new file once its file reaches this size, MiB.
-    #[arg(long, env = "VLNAV_RECORD_MAX_MIB", default_value_t = 512, value_parser = clap::value_parser!(u64).range(1..))]
-    pub record_max_mib: u64,
-    /// The recordings directory is kept under this size, MiB: the oldest
-    /// finished recordings are deleted when a mission starts (0: keep all).
-    #[arg(long, env = "VLNAV_RECORD_BUDGET_MIB", default_value_t = 20480)]
-    pub record_budget_mib: u64,
-    /// Facts about the deployment written into every recording's
-    /// `vlnav.mission` metadata (for example the perception mode a replay
-    /// must use).
-    #[arg(skip)]
-    pub metadata: Vec<(String, String)>,
-}
-
-impl Default for ViewOptions {
-    fn default() -> Self {
-        Self {
-            live_view: "127.0.0.1:8765".into(),
-            live_view_insecure: false,
-            record: true,
-            record_max_mib: 512,
-            record_budget_mib: 20480,
-            metadata: Vec::new(),
-        }
-    }
-}
-
-impl ViewOptions {
-    /// Neither a live view nor recordings.
-    pub fn off() -> Self {
-        Self { live_view: "off".into(), record: false, ..Self::default() }
-    }
-
-    /// The live view's address, checked; `None` when it is off.
-    pub fn live_addr(&self) -> anyhow::Result<Option<SocketAddr>> {
-        if self.live_view.eq_ignore_ascii_case("off") || self.live_view.is_empty() {
-            return Ok(None);
-        }
-        let addr: SocketAddr = self.live_view.parse().map_err(|e| {
-            anyhow::anyhow!("--live-view '{}' is not an address like 127.0.0.1:8765 or `off`: {e}", self.live_view)
-        })?;
-        if !addr.ip().is_loopback() && !self.live_view_insecure {
-            anyhow::bail!(
-                "refusing to serve the live view on {addr}: the Foxglove protocol carries no credentials, so anyone \
-                 who reaches it would see every robot's camera. Keep it on loopback and reach it through \
-                 `kubectl port-forward` or an SSH tunnel, or pass --live-view-insecure"
-            );
-        }
-        Ok(Some(addr))
-    }
-}
-
 /// The mission a frame belongs to, as the live view shows it.
 #[derive(Clone, Debug, Default)]
-pub struct MissionView {
-    pub mission_id: String,
+pub(crate) struct MissionView {
+    pub(crate) mission_id: String,
     /// The step under way: index and description.
-    pub step: Option<(u32, String)>,
-    pub steps: usize,
+    pub(crate) step: Option<(u32, String)>,
+    pub(crate) steps: usize,
     /// "running", "awaiting answer", or the terminal state it reached.
-    pub state: String,
+    pub(crate) state: String,
 }
 
 /// One frame and what the gateway made of it.
-pub struct FrameView {
-    pub robot_id: String,
-    pub frame: pb::SensorFrame,
-    pub command: pb::VelocityCommand,
-    pub mission: Option<MissionView>,
-    pub seen: Seen,
+pub(crate) struct FrameView {
+    pub(crate) robot_id: String,
+    pub(crate) frame: pb::SensorFrame,
+    pub(crate) command: pb::VelocityCommand,
+    pub(crate) mission: Option<MissionView>,
+    pub(crate) seen: Seen,
 }
 
 enum Msg {
@@ -150,7 +83,7 @@ enum Msg {
 /// The handle robot actors use; cheap to clone. Without a live view and
 /// without recordings every call returns at once.
 #[derive(Clone, Default)]
-pub struct Viz {
+pub(crate) struct Viz {
     inner: Option<Arc<Inner>>,
 }
 
@@ -166,7 +99,7 @@ struct Inner {
 impl Viz {
     /// Starts the view thread (and the live view's server, bound before this
     /// returns so a taken port is an error here) when either is wanted.
-    pub fn start(opts: &ViewOptions, data_dir: &Path, hub: Arc<Hub>) -> anyhow::Result<Self> {
+    pub(crate) fn start(opts: &ViewOptions, data_dir: &Path, hub: Arc<Hub>) -> anyhow::Result<Self> {
         let live = opts.live_addr()?;
         if live.is_none() && !opts.record {
             return Ok(Self::default());
@@ -227,18 +160,19 @@ impl Viz {
     }
 
     /// Where the live view listens (with the port the OS chose for port 0).
-    pub fn live_addr(&self) -> Option<SocketAddr> {
+    pub(crate) fn live_addr(&self) -> Option<SocketAddr> {
         self.inner.as_ref().and_then(|i| i.live)
     }
 
     /// Frames dropped because the view thread was behind.
-    pub fn dropped_frames(&self) -> u64 {
+    #[cfg(test)]
+    pub(crate) fn dropped_frames(&self) -> u64 {
         self.inner.as_ref().map_or(0, |i| i.dropped.load(Ordering::Relaxed))
     }
 
     /// Starts recording a mission; returns the file it goes to. The mission
     /// record names it once the file is open.
-    pub fn start_mission(
+    pub(crate) fn start_mission(
         &self,
         robot_id: &str,
         mission_id: &str,
@@ -258,21 +192,21 @@ impl Viz {
     }
 
     /// Ends a mission's recording (its file is finished and closed).
-    pub fn end_mission(&self, robot_id: &str, mission_id: &str) {
+    pub(crate) fn end_mission(&self, robot_id: &str, mission_id: &str) {
         if let Some(inner) = &self.inner {
             let _ = inner.tx.send(Msg::End { robot_id: robot_id.into(), mission_id: mission_id.into() });
         }
     }
 
     /// A mission event, in the recording and the live view.
-    pub fn event(&self, robot_id: &str, event: pb::MissionEvent) {
+    pub(crate) fn event(&self, robot_id: &str, event: pb::MissionEvent) {
         if let Some(inner) = &self.inner {
             let _ = inner.tx.send(Msg::Event { robot_id: robot_id.into(), event });
         }
     }
 
     /// Whether frames are wanted at all.
-    pub fn is_on(&self) -> bool {
+    pub(crate) fn is_on(&self) -> bool {
         self.inner.is_some()
     }
 
@@ -281,7 +215,7 @@ impl Viz {
     /// from the view and the recording (and counted): its control loop never
     /// waits. A lockstep robot's clock stands still until it is answered, so
     /// its frame waits for a place instead and its recording stays complete.
-    pub async fn frame(&self, view: FrameView, lockstep: bool) {
+    pub(crate) async fn frame(&self, view: FrameView, lockstep: bool) {
         let Some(inner) = &self.inner else { return };
         let permit = match inner.places.clone().try_acquire_owned() {
             Ok(permit) => permit,
@@ -304,13 +238,13 @@ impl Viz {
     }
 
     /// Waits until everything handed over so far is written (tests).
-    pub fn flush(&self) {
+    pub(crate) fn flush(&self) {
         self.wait_for(Msg::Flush);
     }
 
     /// Writes what was handed over, then ends every recording still open, so
     /// that each file is complete (summary and footer) when the gateway stops.
-    pub fn finish(&self) {
+    pub(crate) fn finish(&self) {
         self.wait_for(Msg::Finish);
     }
 

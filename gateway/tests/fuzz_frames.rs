@@ -1,6 +1,6 @@
 //! Fuzzing the gateway's check of what an edge agent sends
-//! ([`check_frame`], [`check_pose`]) and the executor's view of a frame
-//! ([`frame_from_proto`]): structured corruptions of valid frames
+//! ([`check_frame`], [`check_pose`]) and the checked frame the rest of the
+//! gateway takes ([`CheckedFrame`]): structured corruptions of valid frames
 //! (`vlnav_fuzzgen::frames`: sizes 0 to u32::MAX, NaN and infinities,
 //! lengths that disagree with the sizes, unknown encodings, lying PNG and
 //! JPEG data) and byte-level mutations of a valid encoded `EdgeMessage`
@@ -15,8 +15,7 @@
 use prost::Message;
 use rand::Rng as _;
 use vlnav_fuzzgen::{self as fuzz, PeakAlloc, Rng, frames};
-use vlnav_gateway::executor::grpc::frame_from_proto;
-use vlnav_gateway::frames::{FrameError, MAX_SIDE, check_frame, check_pose};
+use vlnav_gateway::frames::{CheckedFrame, FrameError, MAX_SIDE, check_frame, check_pose};
 use vlnav_proto::v1::{EdgeMessage, ImageEncoding, RgbdFrame, SensorFrame, edge_message};
 
 #[global_allocator]
@@ -94,13 +93,17 @@ fn frame_checks_never_panic_and_accept_only_consistent_frames() {
             let pose_ok = check_pose(f.seq, p).is_ok();
             assert_eq!(pose_ok, p.x.is_finite() && p.y.is_finite() && p.theta.is_finite());
         }
-        // What the executor reads of any frame the robot actor was given.
-        let seen = frame_from_proto(f, None);
-        assert_eq!(seen.seq, f.seq);
+        // What the robot's actor is given: the same verdict, and the camera the executor reads.
+        let sensor = SensorFrame { frame: Some(f.clone()), truth: None };
+        let checked = CheckedFrame::check(sensor, c.previous_stamp);
+        assert_eq!(checked.as_ref().err().map(|e| e.to_string()), result.as_ref().err().map(|e| e.to_string()));
         match result {
             Ok(()) => {
                 assert_consistent(f, c.previous_stamp);
-                assert!(seen.camera.is_some(), "the executor reads the camera of an accepted frame");
+                let checked = checked.expect("accepted");
+                assert_eq!(checked.frame(), f);
+                let cam = f.camera.as_ref().expect("camera");
+                assert_eq!((checked.camera().width, checked.camera().height), (cam.width, cam.height));
                 "accepted".into()
             }
             Err(e) => {

@@ -46,7 +46,8 @@ fn refused<T>(e: impl std::fmt::Display) -> Result<T, String> {
 /// The frame converters the stages run, and the gateway's check.
 fn convert_frame(f: &pb::RgbdFrame) -> Outcome {
     let _ = vlnav_gateway::frames::check_frame(f, None).or_else(refused::<()>);
-    let _ = vlnav_gateway::executor::grpc::frame_from_proto(f, None);
+    let sensor = pb::SensorFrame { frame: Some(f.clone()), truth: None };
+    let _ = vlnav_gateway::frames::CheckedFrame::check(sensor, None).or_else(refused);
     let cam = camera_from_proto(f.camera.as_ref(), "frame.camera", DepthDefaults { min_m: 0.3, max_m: 10.0 })
         .or_else(refused)?;
     depth_from_proto(f.depth.as_ref(), &cam, "frame.depth").or_else(refused)?;

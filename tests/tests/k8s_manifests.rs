@@ -586,6 +586,7 @@ async fn generated_credentials_apply_and_verify_under_the_service_names() {
         tls_cert: Some(creds.join("planner.pem")),
         tls_key: Some(creds.join("planner-key.pem")),
         tls_client_ca: Some(out.join("ca.pem")),
+        ..Default::default()
     };
     let health_port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap();
     let cfg = vlnav_runtime::ServerConfig { tls: server_tls, health_listen: Some(health_port), ..Default::default() };

@@ -84,7 +84,7 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
     assert_eq!(mission.recordings.len(), 1, "{:?}", mission.recordings);
     let file = std::path::PathBuf::from(&mission.recordings[0]);
     assert!(file.starts_with(t.data.path()), "{} is in the gateway's data directory", file.display());
-    t.stack.gateway.fleet().viz().flush();
+    t.stack.gateway.flush_view();
     let out = Command::new(tool("python"))
         .arg(repo_root().join("tests/tests/live_view/check_recording.py"))
         .arg(&file)

@@ -134,7 +134,16 @@ pub fn channel_with(uri: &str, security: &ClientSecurity) -> Result<TracedChanne
                 Some(host),
             )?
         }
-        None => endpoint(uri, tls, None)?.connect_lazy(),
+        None => match (uri.strip_prefix("https://"), tls) {
+            // TLS by a connector of ours (crate::tls): the client
+            // certificate is read again from its files when they change.
+            (Some(rest), Some(tls)) => {
+                let connector =
+                    tls.connector(None).map_err(|e| AddressError(format!("{uri:?}: cannot set up TLS: {e:#}")))?;
+                endpoint(&format!("http://{rest}"), None, None)?.connect_with_connector_lazy(connector)
+            }
+            _ => endpoint(uri, tls, None)?.connect_lazy(),
+        },
     };
     let interceptor = match &security.bearer {
         Some(token) => InjectTraceContext::with_bearer(token)?,

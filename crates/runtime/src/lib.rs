@@ -11,6 +11,10 @@
 //!   the development PKI (docs/security.md);
 //! - [`authz`]: which certificate identities may call which methods, as a
 //!   tower layer every server runs;
+//! - [`revocation`]: revoked identities and certificates, refused at the
+//!   handshake and their running calls ended;
+//! - [`tls`]: rustls settings whose certificates and revocation list are
+//!   read again when their files change;
 //! - [`actor`]: the request/reply helper every service actor uses;
 //! - [`testing`]: a service set served on an ephemeral loopback port, for
 //!   integration tests;
@@ -21,10 +25,12 @@ pub mod actor;
 pub mod authz;
 pub mod client;
 pub mod perception;
+pub mod revocation;
 pub mod security;
 pub mod server;
 pub mod telemetry;
 pub mod testing;
+pub mod tls;
 pub mod transport;
 
 pub use authz::CallerPolicy;

@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context as _;
 use sha2::Digest as _;
-use tonic::transport::{Certificate, ClientTlsConfig, Identity, ServerTlsConfig};
+use tonic::transport::{Certificate, ClientTlsConfig, Identity};
 
 /// URI SAN prefix of a robot's certificate; the rest is its `robot_id`.
 pub const ROBOT_IDENTITY_PREFIX: &str = "spiffe://vlnav/robot/";
@@ -37,10 +37,11 @@ pub fn valid_robot_id(id: &str) -> bool {
 
 /// TLS of a server. With a certificate and key the server speaks only TLS;
 /// with a client CA as well it asks callers for a certificate that CA
-/// signed (mutual TLS).
+/// signed (mutual TLS). The certificate, the key and the revocation list are
+/// read again within a second of a change (docs/security.md).
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct ServerTlsArgs {
-    /// PEM certificate chain this server presents.
+    /// PEM certificate chain this server presents (read again when it changes).
     #[arg(long, env = "VLNAV_TLS_CERT")]
     pub tls_cert: Option<PathBuf>,
     /// PEM private key of --tls-cert.
@@ -49,6 +50,12 @@ pub struct ServerTlsArgs {
     /// PEM CA a caller's certificate must be signed by (mutual TLS).
     #[arg(long, env = "VLNAV_TLS_CLIENT_CA")]
     pub tls_client_ca: Option<PathBuf>,
+    /// Revoked identities and certificate serials (TOML, written by `vlnav
+    /// credentials revoke`): refused at the handshake, and their running
+    /// calls ended, within a second of a change. A missing file revokes
+    /// nothing until it appears.
+    #[arg(long, env = "VLNAV_TLS_REVOKED")]
+    pub tls_revoked: Option<PathBuf>,
 }
 
 impl ServerTlsArgs {
@@ -56,23 +63,36 @@ impl ServerTlsArgs {
         self.tls_cert.is_some() || self.tls_key.is_some()
     }
 
-    /// tonic's TLS settings, or `None` for plaintext. `client_optional`:
+    /// The server's TLS, or `None` for plaintext. `client_optional`:
     /// callers without a certificate are let through to the next check (the
     /// gateway's token layer); otherwise the handshake refuses them.
-    pub fn load(&self, client_optional: bool) -> anyhow::Result<Option<ServerTlsConfig>> {
+    pub fn load(&self, client_optional: bool) -> anyhow::Result<Option<crate::tls::ServerTls>> {
         let (cert, key) = match (&self.tls_cert, &self.tls_key) {
             (None, None) if self.tls_client_ca.is_some() => {
                 anyhow::bail!("--tls-client-ca needs --tls-cert and --tls-key: mutual TLS is TLS first")
+            }
+            (None, None) if self.tls_revoked.is_some() => {
+                anyhow::bail!(
+                    "--tls-revoked needs --tls-cert, --tls-key and --tls-client-ca: revocation is of client certificates"
+                )
             }
             (None, None) => return Ok(None),
             (Some(c), Some(k)) => (c, k),
             _ => anyhow::bail!("give both --tls-cert and --tls-key (VLNAV_TLS_CERT, VLNAV_TLS_KEY), or neither"),
         };
-        let mut tls = ServerTlsConfig::new().identity(Identity::from_pem(read_pem(cert)?, read_pem(key)?));
-        if let Some(ca) = &self.tls_client_ca {
-            tls = tls.client_ca_root(Certificate::from_pem(read_pem(ca)?)).client_auth_optional(client_optional);
+        if self.tls_revoked.is_some() && self.tls_client_ca.is_none() {
+            anyhow::bail!(
+                "--tls-revoked needs --tls-client-ca (VLNAV_TLS_CLIENT_CA): without it no caller presents a certificate to revoke"
+            );
         }
-        Ok(Some(tls))
+        crate::tls::ServerTls::load(
+            cert,
+            key,
+            self.tls_client_ca.as_deref(),
+            self.tls_revoked.as_deref(),
+            client_optional,
+        )
+        .map(Some)
     }
 }
 
@@ -100,37 +120,61 @@ impl ClientTlsArgs {
                 "--tls-client-cert needs --tls-ca (VLNAV_TLS_CA): a client verifies the server before it shows its certificate"
             );
         }
-        let identity = match (&self.tls_client_cert, &self.tls_client_key) {
-            (None, None) => None,
-            (Some(c), Some(k)) => Some((read_pem(c)?, read_pem(k)?)),
+        let (identity, identity_files) = match (&self.tls_client_cert, &self.tls_client_key) {
+            (None, None) => (None, None),
+            (Some(c), Some(k)) => (Some((read_pem(c)?, read_pem(k)?)), Some((c.clone(), k.clone()))),
             _ => anyhow::bail!(
                 "give both --tls-client-cert and --tls-client-key (VLNAV_TLS_CLIENT_CERT, VLNAV_TLS_CLIENT_KEY), or neither"
             ),
         };
         match &self.tls_ca {
-            Some(ca) => Ok(Some(ClientTls { ca_pem: read_pem(ca)?, identity })),
+            Some(ca) => Ok(Some(ClientTls { ca_pem: read_pem(ca)?, identity, identity_files })),
             None => Ok(None),
         }
     }
 }
 
-/// A client's TLS material, read.
+/// A client's TLS material, read; with the files of its certificate when
+/// it came from files, which are read again at each new connection when
+/// they changed (renewal without a restart).
 #[derive(Clone, Debug)]
 pub struct ClientTls {
     ca_pem: Vec<u8>,
     identity: Option<(Vec<u8>, Vec<u8>)>,
+    identity_files: Option<(PathBuf, PathBuf)>,
 }
 
 impl ClientTls {
     pub fn new(ca_pem: Vec<u8>, identity: Option<(Vec<u8>, Vec<u8>)>) -> Self {
-        Self { ca_pem, identity }
+        Self { ca_pem, identity, identity_files: None }
+    }
+
+    /// Presenting the certificate and key in these files, read now and again
+    /// at each new connection when they changed.
+    pub fn from_files(ca_pem: Vec<u8>, cert: &Path, key: &Path) -> anyhow::Result<Self> {
+        let identity = Some((read_pem(cert)?, read_pem(key)?));
+        Ok(Self { ca_pem, identity, identity_files: Some((cert.to_path_buf(), key.to_path_buf())) })
+    }
+
+    /// The rustls connector of a channel to one address: verifies servers
+    /// against the CA (for `domain` when given, else the address's host) and
+    /// presents the client certificate as its files are at each connection.
+    pub fn connector(&self, domain: Option<&str>) -> anyhow::Result<crate::tls::ClientConnector> {
+        let identity = match (&self.identity_files, &self.identity) {
+            (Some((c, k)), _) => Some(crate::tls::CertificateFiles::load(c, k)?),
+            (None, Some((c, k))) => Some(crate::tls::CertificateFiles::fixed(c, k)?),
+            (None, None) => None,
+        };
+        crate::tls::ClientConnector::new(&self.ca_pem, identity, domain)
     }
 
     /// tonic's settings: only the given CA is trusted (no system roots);
-    /// `domain` overrides the name the server's certificate must carry.
+    /// `domain` overrides the name the server's certificate must carry. A
+    /// certificate from files is read from them now.
     pub fn config(&self, domain: Option<&str>) -> ClientTlsConfig {
         let mut cfg = ClientTlsConfig::new().ca_certificate(Certificate::from_pem(&self.ca_pem));
-        if let Some((cert, key)) = &self.identity {
+        let current = self.identity_files.as_ref().and_then(|(c, k)| Some((read_pem(c).ok()?, read_pem(k).ok()?)));
+        if let Some((cert, key)) = current.as_ref().or(self.identity.as_ref()) {
             cfg = cfg.identity(Identity::from_pem(cert, key));
         }
         if let Some(d) = domain {
@@ -296,6 +340,9 @@ pub struct DevPki {
 /// and ::1): it is for one machine (docs/security.md).
 pub const DEV_SERVER_NAMES: &[&str] = &["localhost"];
 
+/// The revocation list's file name, beside the CA.
+pub const REVOCATION_FILE: &str = "revoked.toml";
+
 /// How long development certificates are valid, days.
 pub const DEV_CERT_DAYS: i64 = 365;
 
@@ -436,6 +483,11 @@ impl DevPki {
     pub fn robot_key(&self, robot_id: &str) -> PathBuf {
         self.dir.join(format!("robot-{robot_id}-key.pem"))
     }
+    /// The revocation list every server of this PKI reads (`vlnav
+    /// credentials revoke` writes it).
+    pub fn revoked(&self) -> PathBuf {
+        self.dir.join(REVOCATION_FILE)
+    }
 
     /// A server's TLS: this PKI's server certificate, callers verified against its CA.
     pub fn server_args(&self) -> ServerTlsArgs {
@@ -443,6 +495,7 @@ impl DevPki {
             tls_cert: Some(self.server_cert()),
             tls_key: Some(self.server_key()),
             tls_client_ca: Some(self.ca()),
+            tls_revoked: Some(self.revoked()),
         }
     }
 
@@ -519,6 +572,15 @@ mod tests {
         assert!(only_cert.load(false).unwrap_err().to_string().contains("--tls-key"));
         let ca_only = ServerTlsArgs { tls_client_ca: Some("ca.pem".into()), ..Default::default() };
         assert!(ca_only.load(false).unwrap_err().to_string().contains("--tls-cert"));
+        let revoked_only = ServerTlsArgs { tls_revoked: Some("revoked.toml".into()), ..Default::default() };
+        assert!(revoked_only.load(false).unwrap_err().to_string().contains("--tls-revoked needs --tls-cert"));
+        let revoked_no_ca = ServerTlsArgs {
+            tls_cert: Some("c.pem".into()),
+            tls_key: Some("k.pem".into()),
+            tls_revoked: Some("revoked.toml".into()),
+            ..Default::default()
+        };
+        assert!(revoked_no_ca.load(false).unwrap_err().to_string().contains("--tls-revoked needs --tls-client-ca"));
         let cert_no_ca =
             ClientTlsArgs { tls_client_cert: Some("c".into()), tls_client_key: Some("k".into()), tls_ca: None };
         assert!(cert_no_ca.load().unwrap_err().to_string().contains("--tls-ca"));

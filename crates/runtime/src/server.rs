@@ -213,11 +213,8 @@ pub async fn serve(
             }
         });
     }
-    let mut builder = tonic::transport::Server::builder();
-    if let Some(tls) = tls {
-        builder = builder.tls_config(tls)?;
-    }
-    builder
+    let revoked = tls.as_ref().and_then(|t| t.revoked());
+    let router = tonic::transport::Server::builder()
         .timeout(Duration::from_secs_f64(cfg.request_timeout_s.max(0.001)))
         // Overload: a connection past its in-flight limit is refused at once
         // (RESOURCE_EXHAUSTED), never queued behind work it cannot see.
@@ -232,14 +229,22 @@ pub async fn serve(
         .initial_stream_window_size(STREAM_WINDOW)
         .initial_connection_window_size(CONNECTION_WINDOW)
         .layer(TelemetryLayer { stages: Arc::new(stages) })
-        // Inside the telemetry layer, so a refusal is traced and counted.
+        // Inside the telemetry layer, so a refusal is traced and counted; a
+        // revoked certificate is refused before its identity is looked at.
+        .layer(crate::revocation::RevocationLayer::new(revoked))
         .layer(crate::authz::AuthzLayer::new(callers))
-        .add_routes(routes.routes())
+        .add_routes(routes.routes());
+    match tls {
+        // TLS handshakes of our own (crate::tls): the certificate and the
+        // revocation list are read again when their files change.
+        Some(tls) => router.serve_with_incoming_shutdown(tls.incoming(listener, shutdown.clone()), drain).await?,
         // The builder's tcp_nodelay applies only to listeners tonic binds
         // itself; accepted sockets of ours need it set here, or Nagle holds
         // a response's last segment until the client's delayed ACK (~40 ms).
-        .serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), drain)
-        .await?;
+        None => {
+            router.serve_with_incoming_shutdown(TcpIncoming::from(listener).with_nodelay(Some(true)), drain).await?
+        }
+    }
     Ok(())
 }
 

@@ -223,3 +223,25 @@ mod tests {
         assert!(token.is_cancelled());
     }
 }
+
+/// A detector stage that detects nothing and names its model "stub": the
+/// smallest real gRPC service for tests of the server's layers (caller
+/// identity, revocation), which look only at who calls.
+#[derive(Clone)]
+pub struct StubDetector;
+
+#[tonic::async_trait]
+impl vlnav_proto::v1::detector_service_server::DetectorService for StubDetector {
+    async fn detect(
+        &self,
+        _: tonic::Request<vlnav_proto::v1::DetectRequest>,
+    ) -> Result<tonic::Response<vlnav_proto::v1::DetectResponse>, tonic::Status> {
+        Err(tonic::Status::invalid_argument("the stub detects nothing"))
+    }
+    async fn get_model_info(
+        &self,
+        _: tonic::Request<vlnav_proto::v1::GetModelInfoRequest>,
+    ) -> Result<tonic::Response<vlnav_proto::v1::ModelInfo>, tonic::Status> {
+        Ok(tonic::Response::new(vlnav_proto::v1::ModelInfo { model: "stub".into(), ..Default::default() }))
+    }
+}

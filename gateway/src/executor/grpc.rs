@@ -11,6 +11,7 @@ use vlnav_geometry::convert::{self, goal_to_proto, pose_to_proto};
 
 use super::machine::{MoveQuery, PlannerReply, Reply, Request, StageFailure};
 use super::model::*;
+use crate::frames::CheckedFrame;
 use crate::pipeline::Pipeline;
 
 /// A stage's error status as the mission's failure: a call past its
@@ -29,16 +30,13 @@ fn stage(stage: &'static str, deadline: Duration) -> impl FnOnce(tonic::Status) 
 }
 
 /// The stages, over gRPC, for one robot and one frame.
-pub struct Stages<'a> {
-    pub pipeline: &'a Pipeline,
-    pub robot_id: &'a str,
-    pub frame: &'a pb::RgbdFrame,
-    /// This frame's no-go points from the segmenter, for its local-planner call.
-    pub no_go: Vec<pb::Point3>,
-    /// This frame's person boxes from the detector, for its local-planner call.
-    pub people: Vec<pb::BoundingBox>,
-    /// The primitive the local planner chose on this frame, base_link.
-    pub path: Vec<pb::Point3>,
+pub(crate) struct Stages<'a> {
+    pub(crate) pipeline: &'a Pipeline,
+    pub(crate) robot_id: &'a str,
+    pub(crate) frame: &'a pb::RgbdFrame,
+    /// The segmenter's points of a `Perceive` whose detection then failed:
+    /// the machine gets no reply, but the live view still shows them.
+    pub(crate) segmented_unanswered: Option<Vec<Vector3<f64>>>,
 }
 
 impl Stages<'_> {
@@ -56,7 +54,7 @@ impl Stages<'_> {
         stage(name, self.pipeline.stage_timeout)
     }
 
-    pub async fn call(&mut self, request: Request) -> Result<Reply, StageFailure> {
+    pub(crate) async fn call(&mut self, request: Request) -> Result<Reply, StageFailure> {
         let pipeline = self.pipeline;
         match request {
             Request::StartStep { move_goal, forget, .. } => {
@@ -87,10 +85,13 @@ impl Stages<'_> {
                 let mut detector = pipeline.detector.clone();
                 let request = pb::DetectRequest { frame: Some(self.frame.clone()), class_ids, min_score };
                 let (detected, no_go) = tokio::join!(detector.detect(self.deadline(request)), segment);
-                self.no_go = no_go?;
+                let no_go: Vec<Vector3<f64>> = no_go?.iter().map(|p| Vector3::new(p.x, p.y, p.z)).collect();
                 let boxes = match (detected, detect) {
                     (Ok(d), _) => d.into_inner().boxes,
-                    (Err(s), Some(_)) => return Err(self.failed("detector")(s)),
+                    (Err(s), Some(_)) => {
+                        self.segmented_unanswered = Some(no_go);
+                        return Err(self.failed("detector")(s));
+                    }
                     // Driving needs only depth: without the detector the
                     // robot goes on without knowing who is a person.
                     (Err(s), None) => {
@@ -99,10 +100,10 @@ impl Stages<'_> {
                         Vec::new()
                     }
                 };
-                self.people = boxes.iter().filter(|b| b.class_id == PERSON_CLASS).cloned().collect();
+                let people = boxes.iter().filter(|b| b.class_id == PERSON_CLASS).map(detection_from_proto).collect();
                 let boxes =
                     if detect.is_some() { boxes.iter().map(detection_from_proto).collect() } else { Vec::new() };
-                Ok(Reply::Perceived { boxes })
+                Ok(Reply::Perceived { boxes, obstacles: Obstacles { no_go, people } })
             }
             Request::Identify { boxes, name } => {
                 let identities = pipeline
@@ -158,7 +159,7 @@ impl Stages<'_> {
                 }))
             }
             Request::MoveGoal(q) => Ok(Reply::Goal(self.move_goal(q).await?)),
-            Request::Drive { goal } => {
+            Request::Drive { goal, obstacles } => {
                 let plan = pipeline
                     .local_planner
                     .clone()
@@ -166,9 +167,9 @@ impl Stages<'_> {
                         robot_id: self.robot_id.to_string(),
                         frame: Some(depth_only(self.frame)),
                         goal: Some(goal_to_proto(&goal)),
-                        no_go_points: self.no_go.clone(),
+                        no_go_points: obstacles.no_go.iter().map(|p| pb::Point3 { x: p.x, y: p.y, z: p.z }).collect(),
                         max_speed: 0.0,
-                        people: self.people.clone(),
+                        people: obstacles.people.iter().map(detection_to_proto).collect(),
                     }))
                     .await
                     .map_err(self.failed("local-planner"))?
@@ -181,15 +182,15 @@ impl Stages<'_> {
                     Ok(pb::LocalPlanStatus::NoProgress) => DriveStatus::NoProgress,
                     _ => DriveStatus::Unspecified,
                 };
-                self.path = plan.path;
-                Ok(Reply::Driven(DriveAnswer {
+                let answer = DriveAnswer {
                     status,
                     cmd: plan.cmd.map_or(Twist::ZERO, |c| Twist { linear: c.linear, angular: c.angular }),
                     path_id: plan.path_id,
                     distance_to_goal: plan.distance_to_goal,
                     heading_error: plan.heading_error,
                     free_paths: plan.free_paths,
-                }))
+                };
+                Ok(Reply::Driven { answer, path: plan.path.iter().map(|p| [p.x, p.y]).collect() })
             }
         }
     }
@@ -276,14 +277,14 @@ fn detection_to_proto(b: &Detection) -> pb::BoundingBox {
     }
 }
 
-/// What the state machine sees of a sensor frame.
-pub fn frame_from_proto(f: &pb::RgbdFrame, truth: Option<&pb::SimTruth>) -> Frame {
+/// What the state machine sees of a checked sensor frame.
+pub(crate) fn frame_from_proto(checked: &CheckedFrame) -> Frame {
+    let f = checked.frame();
     Frame {
-        seq: f.seq,
         stamp: f.stamp,
         pose: f.odom.as_ref().map(pose_from_proto).unwrap_or_default(),
-        camera: convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET).ok(),
-        truth: truth.map(|t| Truth {
+        camera: Some(*checked.camera()),
+        truth: checked.truth().map(|t| Truth {
             pose: t.pose.as_ref().map(pose_from_proto),
             path_length_m: t.path_length_m,
             hard_collisions: t.hard_collisions,
@@ -293,7 +294,7 @@ pub fn frame_from_proto(f: &pb::RgbdFrame, truth: Option<&pb::SimTruth>) -> Fram
     }
 }
 
-pub fn action_from_proto(a: i32) -> Action {
+pub(crate) fn action_from_proto(a: i32) -> Action {
     match pb::ActionKind::try_from(a) {
         Ok(pb::ActionKind::Move) => Action::Move,
         Ok(pb::ActionKind::Find) => Action::Find,
@@ -313,7 +314,7 @@ fn action_to_proto(a: Action) -> pb::ActionKind {
     }
 }
 
-pub fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
+pub(crate) fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
     PlanStep {
         action: action_from_proto(s.action),
         desc: s.desc.clone(),
@@ -333,7 +334,7 @@ pub fn step_from_proto(s: &pb::ActionStep) -> PlanStep {
     }
 }
 
-pub fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
+pub(crate) fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
     pb::ActionStep {
         action: action_to_proto(s.action) as i32,
         desc: s.desc.clone(),
@@ -353,15 +354,15 @@ pub fn step_to_proto(s: &PlanStep) -> pb::ActionStep {
     }
 }
 
-pub fn question_from_proto(c: &pb::Clarification) -> Question {
+pub(crate) fn question_from_proto(c: &pb::Clarification) -> Question {
     Question { question: c.question.clone(), reason: c.reason.clone(), options: c.options.clone() }
 }
 
-pub fn question_to_proto(q: &Question) -> pb::Clarification {
+pub(crate) fn question_to_proto(q: &Question) -> pb::Clarification {
     pb::Clarification { question: q.question.clone(), reason: q.reason.clone(), options: q.options.clone() }
 }
 
-pub fn outcome_to_proto(o: Outcome) -> pb::MissionState {
+pub(crate) fn outcome_to_proto(o: Outcome) -> pb::MissionState {
     match o {
         Outcome::Succeeded => pb::MissionState::Succeeded,
         Outcome::Failed => pb::MissionState::Failed,
@@ -386,7 +387,7 @@ fn metrics_to_proto(m: &Metrics) -> pb::MissionMetrics {
 }
 
 /// The planner's response as the state machine takes it.
-pub fn planner_reply(resp: pb::PlanResponse) -> Result<PlannerReply, tonic::Status> {
+pub(crate) fn planner_reply(resp: pb::PlanResponse) -> Result<PlannerReply, tonic::Status> {
     match resp.outcome {
         Some(pb::plan_response::Outcome::Plan(p)) => {
             Ok(PlannerReply::Plan { steps: p.steps.iter().map(step_from_proto).collect(), plan_json: resp.plan_json })
@@ -397,10 +398,10 @@ pub fn planner_reply(resp: pb::PlanResponse) -> Result<PlannerReply, tonic::Stat
 }
 
 /// A mission-record change that comes with an event.
-pub type Change = Box<dyn FnOnce(&mut pb::Mission) + Send>;
+pub(crate) type Change = Box<dyn FnOnce(&mut pb::Mission) + Send>;
 
 /// An event as the mission store records it, with the change it makes to the mission.
-pub fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
+pub(crate) fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
     use pb::mission_event::Kind;
     match event {
         Event::StepStarted { index, step, anchor } => (
@@ -479,5 +480,20 @@ pub fn event_to_proto(event: Event) -> (pb::mission_event::Kind, Change) {
             }),
             Box::new(move |m| m.current_step = current_step),
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_machine_reads_the_checked_frame_with_the_camera_its_check_read() {
+        let f = crate::frames::tests::frame(8, 6);
+        let checked = CheckedFrame::check(pb::SensorFrame { frame: Some(f.clone()), truth: None }, None).unwrap();
+        let seen = frame_from_proto(&checked);
+        assert_eq!(seen.stamp, f.stamp);
+        let camera = convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET);
+        assert_eq!(seen.camera, Some(camera.unwrap()));
     }
 }

@@ -3,38 +3,51 @@
 //! requests through the stage services over gRPC (`grpc`), records its events
 //! in the mission store and traces each control cycle.
 
-pub mod grpc;
-pub mod machine;
-pub mod model;
+pub(crate) mod grpc;
+pub(crate) mod machine;
+pub(crate) mod model;
 
 use tracing::Instrument;
-use tracing_opentelemetry::OpenTelemetrySpanExt;
-use vlnav_proto::v1::{ActionStep, Clarification, MissionState, SensorFrame, Twist2D};
+use vlnav_proto::v1::{ActionStep, Clarification, MissionState, Twist2D};
 
 use crate::config::ExecutorParams;
+use crate::frames::CheckedFrame;
 use crate::hub::Hub;
 use crate::pipeline::Pipeline;
-use machine::{Mission, Next, PlannerQuery, Request};
+use machine::{Mission, Next, PlannerQuery, Reply, Request};
 
-pub struct Ctx<'a> {
-    pub pipeline: &'a Pipeline,
-    pub params: &'a ExecutorParams,
-    pub hub: &'a Hub,
-    /// The live view and recordings: they get the mission's events too.
-    pub viz: &'a crate::viz::Viz,
+/// What the executor works with: the stages, its parameters, the mission
+/// store and where else its events go.
+pub(crate) struct Ctx<'a> {
+    pub(crate) pipeline: &'a Pipeline,
+    pub(crate) params: &'a ExecutorParams,
+    pub(crate) hub: &'a Hub,
+    /// Takes the mission's events besides the store.
+    pub(crate) events: &'a dyn EventSink,
+}
+
+/// Where the executor's events go besides the mission store. The robot's
+/// actor connects the live view and the recordings to it (`robot.rs`), so
+/// data flows one way: the executor knows nothing of who reads its events
+/// (docs/architecture.md, "The gateway's modules").
+pub(crate) trait EventSink: Sync {
+    /// Whether anyone takes events now (each is copied for it).
+    fn wants_events(&self) -> bool;
+    /// A mission of robot `robot_id` recorded `event`.
+    fn event(&self, robot_id: &str, event: vlnav_proto::v1::MissionEvent);
 }
 
 /// What the executor tells the robot after a frame.
-pub struct Tick {
-    pub twist: Twist2D,
+pub(crate) struct Tick {
+    pub(crate) twist: Twist2D,
     /// False while the robot may idle (waiting for the user or for a stage).
-    pub active: bool,
+    pub(crate) active: bool,
     /// Set when the mission reached a terminal state on this frame.
-    pub finished: Option<MissionState>,
+    pub(crate) finished: Option<MissionState>,
     /// The control-cycle span of this frame (parent of the edge-forward span).
-    pub span: tracing::Span,
+    pub(crate) span: tracing::Span,
     /// What the cycle perceived and decided, for the live view and recordings.
-    pub seen: Seen,
+    pub(crate) seen: Seen,
 }
 
 impl Tick {
@@ -51,24 +64,24 @@ impl Tick {
 
 /// What one control cycle perceived and decided, gathered from the state
 /// machine's requests and the stages' answers; the live view and the mission
-/// recordings draw it (`crate::viz`, docs/observability.md).
+/// recordings draw it (docs/observability.md).
 #[derive(Clone, Debug, Default)]
-pub struct Seen {
+pub(crate) struct Seen {
     /// Every box the detector returned on this frame.
-    pub boxes: Vec<model::Detection>,
+    pub(crate) boxes: Vec<model::Detection>,
     /// The box handed to the estimator: the target as the executor tracks it.
-    pub target: Option<model::Detection>,
+    pub(crate) target: Option<model::Detection>,
     /// The segmenter's virtual obstacle points, `base_link`.
-    pub no_go: Vec<[f64; 3]>,
+    pub(crate) no_go: Vec<[f64; 3]>,
     /// The estimator's fused target, `odom`.
-    pub fused_target: Option<[f64; 3]>,
+    pub(crate) fused_target: Option<[f64; 3]>,
     /// The goal driven toward on this frame, `odom`.
-    pub goal: Option<model::Goal>,
+    pub(crate) goal: Option<model::Goal>,
     /// The local planner's answer and its chosen primitive (`base_link`).
-    pub drive: Option<model::DriveAnswer>,
-    pub path: Vec<[f64; 2]>,
+    pub(crate) drive: Option<model::DriveAnswer>,
+    pub(crate) path: Vec<[f64; 2]>,
     /// A plan step began on this frame (odometry is re-anchored there).
-    pub step_started: bool,
+    pub(crate) step_started: bool,
 }
 
 impl Seen {
@@ -76,18 +89,24 @@ impl Seen {
         match request {
             Request::StartStep { .. } => self.step_started = true,
             Request::Locate { detection, .. } => self.target = Some(detection.clone()),
-            Request::Drive { goal } => self.goal = Some(*goal),
+            Request::Drive { goal, .. } => self.goal = Some(*goal),
             _ => {}
         }
     }
 
     fn reply(&mut self, reply: &machine::Reply) {
         match reply {
-            machine::Reply::Perceived { boxes } => self.boxes = boxes.clone(),
+            machine::Reply::Perceived { boxes, obstacles } => {
+                self.boxes = boxes.clone();
+                self.no_go = obstacles.no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
+            }
             machine::Reply::Located(estimate) => {
                 self.fused_target = estimate.fused_target.map(|p| [p.x, p.y, p.z]);
             }
-            machine::Reply::Driven(answer) => self.drive = Some(*answer),
+            machine::Reply::Driven { answer, path } => {
+                self.drive = Some(*answer);
+                self.path = path.clone();
+            }
             _ => {}
         }
     }
@@ -121,9 +140,9 @@ fn guarded(machine: &mut Mission, decide: impl FnOnce(&mut Mission) -> Next) -> 
 }
 
 /// One mission on one robot: the state machine and its trace spans.
-pub struct MissionRun {
-    pub mission_id: String,
-    pub robot_id: String,
+pub(crate) struct MissionRun {
+    pub(crate) mission_id: String,
+    pub(crate) robot_id: String,
     machine: Mission,
     span: tracing::Span,
     /// The span of the step under way.
@@ -135,7 +154,7 @@ pub struct MissionRun {
 
 impl MissionRun {
     /// A run of `plan`; `awaiting` holds a question asked before execution.
-    pub fn new(
+    pub(crate) fn new(
         mission_id: String,
         robot_id: String,
         instruction: String,
@@ -157,40 +176,40 @@ impl MissionRun {
     }
 
     /// The step under way (index, description), once one has started.
-    pub fn step(&self) -> Option<&(u32, String)> {
+    pub(crate) fn step(&self) -> Option<&(u32, String)> {
         self.step.as_ref()
     }
 
     /// The instruction as the user gave it.
-    pub fn instruction(&self) -> &str {
+    pub(crate) fn instruction(&self) -> &str {
         &self.instruction
     }
 
     /// The plan being executed, as the planner's contract states it.
-    pub fn plan_proto(&self) -> vlnav_proto::v1::ActionPlan {
+    pub(crate) fn plan_proto(&self) -> vlnav_proto::v1::ActionPlan {
         vlnav_proto::v1::ActionPlan { steps: self.machine.plan().iter().map(grpc::step_to_proto).collect() }
     }
 
     /// The plan's length.
-    pub fn plan_len(&self) -> usize {
+    pub(crate) fn plan_len(&self) -> usize {
         self.machine.plan().len()
     }
 
-    pub fn is_awaiting(&self) -> bool {
+    pub(crate) fn is_awaiting(&self) -> bool {
         self.machine.is_awaiting()
     }
 
     /// Writes the machine's new events to the mission store, in order.
     /// `on_frame` leaves its last frame's events for the robot's actor to
     /// flush once it has updated what it reports of the robot.
-    pub fn flush(&mut self, ctx: &Ctx<'_>) {
+    pub(crate) fn flush(&mut self, ctx: &Ctx<'_>) {
         self.record(ctx);
     }
 
     fn record(&mut self, ctx: &Ctx<'_>) {
         for stamped in self.machine.take_events() {
             let (kind, change) = grpc::event_to_proto(stamped.event);
-            let shown = ctx.viz.is_on().then(|| kind.clone());
+            let shown = ctx.events.wants_events().then(|| kind.clone());
             match ctx.hub.record(&self.mission_id, stamped.stamp, Some(kind), change) {
                 Ok(_) => {
                     if let Some(kind) = shown {
@@ -200,7 +219,7 @@ impl MissionRun {
                             stamp: stamped.stamp,
                             kind: Some(kind),
                         };
-                        ctx.viz.event(&self.robot_id, event);
+                        ctx.events.event(&self.robot_id, event);
                     }
                 }
                 Err(e) => tracing::error!(mission = %self.mission_id, "cannot record event: {e}"),
@@ -209,14 +228,14 @@ impl MissionRun {
     }
 
     /// Ends the mission: the user cancelled it.
-    pub fn cancel(&mut self, ctx: &Ctx<'_>) {
+    pub(crate) fn cancel(&mut self, ctx: &Ctx<'_>) {
         self.machine.cancel();
         self.record(ctx);
     }
 
     /// One sensor frame in, one velocity command out.
-    pub async fn on_frame(&mut self, ctx: &Ctx<'_>, sf: &SensorFrame) -> Tick {
-        let Some(frame) = sf.frame.as_ref() else { return Tick::idle() };
+    pub(crate) async fn on_frame(&mut self, ctx: &Ctx<'_>, checked: &CheckedFrame) -> Tick {
+        let frame = checked.frame();
         if self.machine.is_awaiting() {
             return Tick::idle();
         }
@@ -224,16 +243,12 @@ impl MissionRun {
         let cycle =
             tracing::info_span!(parent: &parent, "control-cycle", frame.seq = frame.seq, frame.stamp = frame.stamp);
         let robot_id = self.robot_id.clone();
-        let mut stages = grpc::Stages {
-            pipeline: ctx.pipeline,
-            robot_id: &robot_id,
-            frame,
-            no_go: Vec::new(),
-            people: Vec::new(),
-            path: Vec::new(),
-        };
+        let mut stages =
+            grpc::Stages { pipeline: ctx.pipeline, robot_id: &robot_id, frame, segmented_unanswered: None };
         let mut seen = Seen::default();
-        let frame_in = grpc::frame_from_proto(frame, sf.truth.as_ref());
+        // The person boxes of the frame's last perception, shown when no FIND asked for boxes.
+        let mut people = Vec::new();
+        let frame_in = grpc::frame_from_proto(checked);
         let mut next = guarded(&mut self.machine, |m| m.on_frame(ctx.params, frame_in));
         let command = loop {
             let request = match next {
@@ -253,9 +268,15 @@ impl MissionRun {
             next = match stages.call(request).instrument(span).await {
                 Ok(reply) => {
                     seen.reply(&reply);
+                    if let Reply::Perceived { obstacles, .. } = &reply {
+                        people.clone_from(&obstacles.people);
+                    }
                     guarded(&mut self.machine, |m| m.on_reply(ctx.params, reply))
                 }
                 Err(failure) => {
+                    if let Some(no_go) = stages.segmented_unanswered.take() {
+                        seen.no_go = no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
+                    }
                     tracing::warn!(parent: &cycle, mission = %self.mission_id, "holding the robot: {failure}");
                     guarded(&mut self.machine, |m| m.on_stage_error(failure))
                 }
@@ -263,10 +284,8 @@ impl MissionRun {
         };
         if seen.boxes.is_empty() {
             // Outside a FIND the detector was asked for people only.
-            seen.boxes = stages.people.iter().map(grpc::detection_from_proto).collect();
+            seen.boxes = people;
         }
-        seen.no_go = stages.no_go.iter().map(|p| [p.x, p.y, p.z]).collect();
-        seen.path = stages.path.iter().map(|p| [p.x, p.y]).collect();
         Tick {
             twist: Twist2D { linear: command.twist.linear, angular: command.twist.angular },
             active: command.active,
@@ -278,7 +297,7 @@ impl MissionRun {
 
     /// The user's answer: the planner revises the steps from the one that
     /// failed on. Returns the revised full plan, or a further question.
-    pub async fn answer(
+    pub(crate) async fn answer(
         &mut self,
         ctx: &Ctx<'_>,
         answer: &str,
@@ -313,12 +332,6 @@ impl MissionRun {
         let result = self.machine.on_planner_reply(answer, grpc::planner_reply(response)?);
         self.record(ctx);
         Ok(result.map(|plan| plan.iter().map(grpc::step_to_proto).collect()).map_err(|q| grpc::question_to_proto(&q)))
-    }
-
-    /// The W3C trace id of this mission.
-    pub fn trace_id(&self) -> String {
-        use opentelemetry::trace::TraceContextExt;
-        self.span.context().span().span_context().trace_id().to_string()
     }
 }
 

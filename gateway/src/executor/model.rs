@@ -4,41 +4,40 @@
 
 use nalgebra::Vector3;
 use vlnav_geometry::camera::Camera;
-pub use vlnav_geometry::{GoalSpec as Goal, Pose2};
+pub(crate) use vlnav_geometry::{GoalSpec as Goal, Pose2};
 
-pub use vlnav_geometry::Twist;
+pub(crate) use vlnav_geometry::Twist;
 
 /// COCO's class index for a person (YOLOv8 numbering).
-pub const PERSON_CLASS: i32 = 0;
+pub(crate) const PERSON_CLASS: i32 = 0;
 
 /// One sensor frame as the state machine sees it: when, where, and how the
 /// camera looks. Pixels stay with the adapter, which hands them to the stages.
 #[derive(Clone, Debug, Default)]
-pub struct Frame {
-    pub seq: u64,
+pub(crate) struct Frame {
     /// Sensor time, seconds: every timeout and rate reads this.
-    pub stamp: f64,
+    pub(crate) stamp: f64,
     /// `base_link` in `odom`.
-    pub pose: Pose2,
+    pub(crate) pose: Pose2,
     /// The camera model, when the frame carries a usable one.
-    pub camera: Option<Camera>,
+    pub(crate) camera: Option<Camera>,
     /// Simulation ground truth, for the mission's metrics.
-    pub truth: Option<Truth>,
+    pub(crate) truth: Option<Truth>,
 }
 
 /// Simulation ground truth attached to a frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Truth {
-    pub pose: Option<Pose2>,
-    pub path_length_m: f64,
-    pub hard_collisions: u32,
-    pub soft_collisions: u32,
+pub(crate) struct Truth {
+    pub(crate) pose: Option<Pose2>,
+    pub(crate) path_length_m: f64,
+    pub(crate) hard_collisions: u32,
+    pub(crate) soft_collisions: u32,
     /// The odometry frame's origin in the world, to map odom goals to truth.
-    pub odom_origin: Option<Pose2>,
+    pub(crate) odom_origin: Option<Pose2>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Action {
+pub(crate) enum Action {
     Unspecified,
     Move,
     Find,
@@ -48,66 +47,66 @@ pub enum Action {
 
 /// One validated plan step (docs/design.md, "Action plan").
 #[derive(Clone, Debug, PartialEq)]
-pub struct PlanStep {
-    pub action: Action,
-    pub desc: String,
+pub(crate) struct PlanStep {
+    pub(crate) action: Action,
+    pub(crate) desc: String,
     /// MOVE: metres to drive after turning.
-    pub f_dist: f64,
+    pub(crate) f_dist: f64,
     /// MOVE: radians to turn first, counter-clockwise positive.
-    pub yaw: f64,
+    pub(crate) yaw: f64,
     /// FIND / FOLLOW: the target phrase and its COCO-80 class id.
-    pub target: String,
-    pub class_id: i32,
+    pub(crate) target: String,
+    pub(crate) class_id: i32,
     /// FIND / FOLLOW: a named person, recognised by ReID.
-    pub person: String,
+    pub(crate) person: String,
     /// Stopping distance, metres (0: the default).
-    pub d_s: f64,
+    pub(crate) d_s: f64,
     /// FOLLOW: seconds to follow (0: the default).
-    pub duration_s: f64,
+    pub(crate) duration_s: f64,
     /// FIND / FOLLOW: the object the target was described by ("the chair next
     /// to the table"), carried with the plan.
-    pub reference: Option<TargetReference>,
+    pub(crate) reference: Option<TargetReference>,
     /// The instruction's words the step came from (planner `ActionStep.source`).
-    pub source: String,
+    pub(crate) source: String,
 }
 
 /// An object a target is described by its relation to.
 #[derive(Clone, Debug, PartialEq)]
-pub struct TargetReference {
-    pub relation: String,
-    pub target: String,
-    pub class_id: i32,
+pub(crate) struct TargetReference {
+    pub(crate) relation: String,
+    pub(crate) target: String,
+    pub(crate) class_id: i32,
 }
 
 /// A detected box in image pixels.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Detection {
-    pub x_min: f32,
-    pub y_min: f32,
-    pub x_max: f32,
-    pub y_max: f32,
-    pub class_id: i32,
-    pub score: f32,
-    pub label: String,
+pub(crate) struct Detection {
+    pub(crate) x_min: f32,
+    pub(crate) y_min: f32,
+    pub(crate) x_max: f32,
+    pub(crate) y_max: f32,
+    pub(crate) class_id: i32,
+    pub(crate) score: f32,
+    pub(crate) label: String,
 }
 
 impl Detection {
-    pub fn center(&self) -> (f32, f32) {
+    pub(crate) fn center(&self) -> (f32, f32) {
         ((self.x_min + self.x_max) / 2.0, (self.y_min + self.y_max) / 2.0)
     }
 }
 
 /// ReID's answer for one box.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Identity {
-    pub box_index: u32,
-    pub name: String,
-    pub similarity: f32,
-    pub matched: bool,
+pub(crate) struct Identity {
+    pub(crate) box_index: u32,
+    pub(crate) name: String,
+    pub(crate) similarity: f32,
+    pub(crate) matched: bool,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum EstimateStatus {
+pub(crate) enum EstimateStatus {
     Unspecified,
     Ok,
     NoDepth,
@@ -117,15 +116,15 @@ pub enum EstimateStatus {
 /// The subgoal estimator's answer for one box: the (fused) target and the
 /// goal at the stopping distance.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Estimate {
-    pub status: EstimateStatus,
-    pub goal: Option<Goal>,
-    pub fused_target: Option<Vector3<f64>>,
-    pub range_m: f64,
+pub(crate) struct Estimate {
+    pub(crate) status: EstimateStatus,
+    pub(crate) goal: Option<Goal>,
+    pub(crate) fused_target: Option<Vector3<f64>>,
+    pub(crate) range_m: f64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DriveStatus {
+pub(crate) enum DriveStatus {
     Unspecified,
     Moving,
     Rotating,
@@ -134,27 +133,40 @@ pub enum DriveStatus {
     NoProgress,
 }
 
+/// What the current frame's perception found that its local-planner step
+/// takes along (`Reply::Perceived`, then `Request::Drive`): the machine keeps
+/// it for the frame, so everything a step is decided on passes through the
+/// machine.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub(crate) struct Obstacles {
+    /// The segmenter's virtual obstacle points, `base_link`.
+    pub(crate) no_go: Vec<Vector3<f64>>,
+    /// The detector's person boxes, for the local planner to keep clear of
+    /// walkers (docs/design.md §4).
+    pub(crate) people: Vec<Detection>,
+}
+
 /// The local planner's answer for one control step.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct DriveAnswer {
-    pub status: DriveStatus,
-    pub cmd: Twist,
-    pub path_id: i32,
-    pub distance_to_goal: f64,
-    pub heading_error: f64,
-    pub free_paths: u32,
+pub(crate) struct DriveAnswer {
+    pub(crate) status: DriveStatus,
+    pub(crate) cmd: Twist,
+    pub(crate) path_id: i32,
+    pub(crate) distance_to_goal: f64,
+    pub(crate) heading_error: f64,
+    pub(crate) free_paths: u32,
 }
 
 /// A question for the user.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Question {
-    pub question: String,
-    pub reason: String,
-    pub options: Vec<String>,
+pub(crate) struct Question {
+    pub(crate) question: String,
+    pub(crate) reason: String,
+    pub(crate) options: Vec<String>,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Outcome {
+pub(crate) enum Outcome {
     Succeeded,
     Failed,
     Cancelled,
@@ -162,22 +174,22 @@ pub enum Outcome {
 
 /// A mission's figures, from frame stamps and (in simulation) ground truth.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Metrics {
-    pub duration_s: f64,
-    pub odom_path_length_m: f64,
-    pub steps_completed: u32,
-    pub steps_total: u32,
-    pub frames: u32,
-    pub replans: u32,
-    pub has_ground_truth: bool,
-    pub true_path_length_m: f64,
-    pub hard_collisions: u32,
-    pub soft_collisions: u32,
-    pub final_error_m: f64,
+pub(crate) struct Metrics {
+    pub(crate) duration_s: f64,
+    pub(crate) odom_path_length_m: f64,
+    pub(crate) steps_completed: u32,
+    pub(crate) steps_total: u32,
+    pub(crate) frames: u32,
+    pub(crate) replans: u32,
+    pub(crate) has_ground_truth: bool,
+    pub(crate) true_path_length_m: f64,
+    pub(crate) hard_collisions: u32,
+    pub(crate) soft_collisions: u32,
+    pub(crate) final_error_m: f64,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum ExplorePhase {
+pub(crate) enum ExplorePhase {
     /// Turning in place and looking.
     Scan,
     /// A bounded forward search leg.
@@ -189,7 +201,7 @@ pub enum ExplorePhase {
 
 /// What happened, in the order it happened, stamped with sensor time.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Event {
+pub(crate) enum Event {
     StepStarted {
         index: u32,
         step: PlanStep,
@@ -241,7 +253,7 @@ pub enum Event {
 
 /// An event and the sensor time it happened at.
 #[derive(Clone, Debug, PartialEq)]
-pub struct Stamped {
-    pub stamp: f64,
-    pub event: Event,
+pub(crate) struct Stamped {
+    pub(crate) stamp: f64,
+    pub(crate) event: Event,
 }

@@ -3,36 +3,6 @@
 //! (lower case, no punctuation, numbers as digits, units and honorifics in
 //! one spelling) so that "move four metres" and "Move 4 m." score as equal.
 
-fn small_number(word: &str) -> Option<u32> {
-    const UNITS: [&str; 20] = [
-        "zero",
-        "one",
-        "two",
-        "three",
-        "four",
-        "five",
-        "six",
-        "seven",
-        "eight",
-        "nine",
-        "ten",
-        "eleven",
-        "twelve",
-        "thirteen",
-        "fourteen",
-        "fifteen",
-        "sixteen",
-        "seventeen",
-        "eighteen",
-        "nineteen",
-    ];
-    const TENS: [&str; 8] = ["twenty", "thirty", "forty", "fifty", "sixty", "seventy", "eighty", "ninety"];
-    if let Some(i) = UNITS.iter().position(|u| *u == word) {
-        return Some(i as u32);
-    }
-    TENS.iter().position(|t| *t == word).map(|i| 20 + 10 * i as u32)
-}
-
 fn canonical_word(word: &str) -> &str {
     match word {
         "meter" | "meters" | "metre" | "metres" => "m",
@@ -65,13 +35,13 @@ pub fn scoring_words(text: &str) -> Vec<String> {
     let mut words = Vec::with_capacity(raw.len());
     let mut i = 0;
     while i < raw.len() {
-        match small_number(raw[i]) {
+        match vlnav_words::value(raw[i]) {
             Some(tens)
                 if tens >= 20
                     && i + 1 < raw.len()
-                    && small_number(raw[i + 1]).is_some_and(|u| (1..10).contains(&u)) =>
+                    && vlnav_words::value(raw[i + 1]).is_some_and(|u| (1..10).contains(&u)) =>
             {
-                words.push((tens + small_number(raw[i + 1]).unwrap_or(0)).to_string());
+                words.push((tens + vlnav_words::value(raw[i + 1]).unwrap_or(0)).to_string());
                 i += 2;
             }
             Some(n) => {

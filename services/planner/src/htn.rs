@@ -422,9 +422,7 @@ fn keyword_vocabulary() -> &'static [&'static str] {
         ] {
             v.extend_from_slice(list);
         }
-        for n in NUMBER_WORDS {
-            v.push(n);
-        }
+        v.extend(vlnav_words::all());
         v.sort_unstable();
         v.dedup();
         v
@@ -763,41 +761,9 @@ const SIDE_PHRASE_WORDS: &[&str] =
 const NEGATIONS: &[&str] = &["don't", "not", "never", "avoid", "without", "shouldn't", "mustn't", "cannot"];
 // ---- numbers and units ------------------------------------------------------
 
-/// Number words, index = value below 20.
-const NUMBER_WORDS: [&str; 28] = [
-    "zero",
-    "one",
-    "two",
-    "three",
-    "four",
-    "five",
-    "six",
-    "seven",
-    "eight",
-    "nine",
-    "ten",
-    "eleven",
-    "twelve",
-    "thirteen",
-    "fourteen",
-    "fifteen",
-    "sixteen",
-    "seventeen",
-    "eighteen",
-    "nineteen",
-    "twenty",
-    "thirty",
-    "forty",
-    "fifty",
-    "sixty",
-    "seventy",
-    "eighty",
-    "ninety",
-];
-
+/// A number word's value (`vlnav_words`: 0 to 19, and tens to 90).
 fn word_number(w: &str) -> Option<f64> {
-    let i = NUMBER_WORDS.iter().position(|s| *s == w)?;
-    Some(if i < 20 { i as f64 } else { (i as f64 - 18.0) * 10.0 })
+    vlnav_words::value(w).map(f64::from)
 }
 
 /// Words between a number and its unit that make it an increment: "2 more metres".
@@ -1891,7 +1857,7 @@ fn not_motion_words(t: &[Token]) -> Option<String> {
             || SIDE_PHRASE_WORDS.contains(&w)
             || MORE.contains(&w)
             || MOTION_EXTRA.contains(&w)
-            || NUMBER_WORDS.contains(&w)
+            || vlnav_words::value(w).is_some()
             || length_unit(w).is_some()
             || angle_unit(w).is_some()
             || duration_unit(w).is_some()
@@ -2796,7 +2762,13 @@ pub fn stated(text: &str) -> Stated {
             turn(*a, spoken(&clause));
         }
         out.durations.extend(&q.durations);
+        // "the left chair" describes a thing; "left", "take a left" and
+        // "go left" turn.
+        let described = !turns
+            && !drives
+            && (has_seq(&ws, &["the", "left"]).is_some() || has_seq(&ws, &["the", "right"]).is_some());
         if q.angles.is_empty()
+            && !described
             && let Some(a) = turn_magnitude(&ws, &q)
         {
             turn(a, spoken(&clause));

@@ -314,3 +314,21 @@ fn corpus_moves_are_no_longer_than_their_words() {
     }
     assert!(checked > 100, "{checked} moves checked");
 }
+
+/// Sentences the generator once found, kept as fixed cases.
+#[test]
+fn found_sentences_keep_to_the_rules() {
+    for text in ["turn right 45 degrees, then then lamp the left chair, then turn left 30 degrees"] {
+        let Some(plan) = plan_of(text) else { continue };
+        let turns: Vec<f64> = plan.steps.iter().map(|s| s.yaw).filter(|y| *y != 0.0).collect();
+        assert!(
+            plan.steps.iter().all(|s| s.action != Action::Move || s.f_dist == 0.0),
+            "{text:?}: {}",
+            plan.to_json_string()
+        );
+        assert!(turns.len() <= 2, "{text:?}: {}", plan.to_json_string());
+        sources_are_quotes(text, &plan).unwrap_or_else(|e| panic!("{text:?}: {e}"));
+        vlnav_planner::provenance::check(&plan, text, grounder())
+            .unwrap_or_else(|e| panic!("{text:?}: the provenance check refuses {}: {e:?}", plan.to_json_string()));
+    }
+}

@@ -152,25 +152,33 @@ pub fn exporter_policy() -> CallerPolicy {
 pub async fn serve_receiver_with(
     listener: TcpListener,
     store: Arc<SpanStore>,
-    tls: Option<tonic::transport::ServerTlsConfig>,
+    tls: Option<vlnav_runtime::tls::ServerTls>,
     shutdown: CancellationToken,
 ) -> anyhow::Result<()> {
     let addr = listener.local_addr()?;
     let (traces, metrics) = OtlpReceiver::new(store.clone()).into_services();
     tracing::info!(%addr, dir = %store.dir().display(), tls = tls.is_some(), "OTLP trace receiver listening");
-    let mut builder = tonic::transport::Server::builder();
-    if let Some(tls) = tls {
-        builder = builder.tls_config(tls)?;
-    }
-    builder
+    let router = tonic::transport::Server::builder()
         .tcp_nodelay(true)
         .layer(AuthzLayer::new(exporter_policy()))
         .add_service(traces)
-        .add_service(metrics)
-        .serve_with_incoming_shutdown(
-            tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true)),
-            shutdown.cancelled_owned(),
-        )
-        .await?;
+        .add_service(metrics);
+    match tls {
+        // The runtime's own handshakes (crates/runtime/src/tls.rs): the
+        // certificate is read again when its files change.
+        Some(tls) => {
+            router
+                .serve_with_incoming_shutdown(tls.incoming(listener, shutdown.clone()), shutdown.cancelled_owned())
+                .await?
+        }
+        None => {
+            router
+                .serve_with_incoming_shutdown(
+                    tonic::transport::server::TcpIncoming::from(listener).with_nodelay(Some(true)),
+                    shutdown.cancelled_owned(),
+                )
+                .await?
+        }
+    }
     Ok(())
 }

@@ -3,6 +3,10 @@
 //! kustomization to apply before the stack. One CA signs a certificate per
 //! component, valid for the names of that component's Services; the
 //! gateway's token file holds only hashes.
+//!
+//! `vlnav credentials revoke`: adds robots, components or single
+//! certificates to the revocation list beside the CA, which servers read
+//! again within a second (`vlnav_runtime::revocation`).
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -29,6 +33,84 @@ pub struct K8sCredentialsArgs {
     /// A robot to issue an edge-agent certificate for; repeatable.
     #[arg(long = "robot")]
     pub robots: Vec<String>,
+}
+
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct RevokeArgs {
+    /// Refuse every certificate naming this robot (spiffe://vlnav/robot/<ID>),
+    /// issued before or after; repeatable.
+    #[arg(long = "robot", value_name = "ID")]
+    pub robots: Vec<String>,
+    /// Refuse every certificate naming this component
+    /// (spiffe://vlnav/service/<NAME>: gateway, planner, ...); repeatable.
+    #[arg(long = "service", value_name = "NAME")]
+    pub services: Vec<String>,
+    /// Refuse only this certificate (a PEM file), by its serial number: a
+    /// leaked key, while a new certificate for the same identity is answered;
+    /// repeatable.
+    #[arg(long = "cert", value_name = "FILE")]
+    pub certs: Vec<PathBuf>,
+    /// Why, shown in refusals and in the servers' logs.
+    #[arg(long, default_value = "")]
+    pub reason: String,
+    /// The credentials directory holding the CA: `.vlnav/security` of `vlnav
+    /// up`, or the --out of `vlnav credentials k8s`. The list is written to
+    /// DIR/revoked.toml.
+    #[arg(long, default_value = ".vlnav/security")]
+    pub dir: PathBuf,
+}
+
+/// Adds what `args` names to the revocation list; returns what was done, for
+/// people.
+pub fn revoke(args: &RevokeArgs) -> anyhow::Result<String> {
+    use vlnav_runtime::revocation::{CertificateId, RevocationList, Revoked};
+    use vlnav_runtime::security::{robot_identity, service_identity, valid_robot_id};
+    if args.robots.is_empty() && args.services.is_empty() && args.certs.is_empty() {
+        anyhow::bail!("name what to revoke: --robot ID, --service NAME or --cert FILE");
+    }
+    if !args.dir.join("ca.pem").exists() {
+        anyhow::bail!(
+            "{} holds no ca.pem: give --dir, the directory of the CA whose certificates to revoke",
+            args.dir.display()
+        );
+    }
+    let mut entries = Vec::new();
+    for id in &args.robots {
+        if !valid_robot_id(id) {
+            anyhow::bail!("--robot {id:?}: a robot id is 1–64 letters, digits, '-', '_' or '.'");
+        }
+        entries.push((robot_identity(id), Revoked { identity: Some(robot_identity(id)), ..Default::default() }));
+    }
+    for name in &args.services {
+        if !valid_robot_id(name) {
+            anyhow::bail!("--service {name:?}: a component name is 1–64 letters, digits, '-', '_' or '.'");
+        }
+        let id = service_identity(name);
+        entries.push((id.clone(), Revoked { identity: Some(id), ..Default::default() }));
+    }
+    for cert in &args.certs {
+        let c = CertificateId::of_pem_file(cert)?;
+        entries.push((c.to_string(), Revoked { serial: Some(c.serial.clone()), ..Default::default() }));
+    }
+    let path = args.dir.join(vlnav_runtime::security::REVOCATION_FILE);
+    let mut list = RevocationList::load(&path)?;
+    let now = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_secs_f64()).ok();
+    let mut report = String::new();
+    for (what, mut entry) in entries {
+        entry.reason = args.reason.clone();
+        entry.revoked_unix = now;
+        let added = list.add(entry);
+        let _ = writeln!(report, "{} {what}", if added { "revoked" } else { "already revoked:" });
+    }
+    list.save(&path)?;
+    let _ = write!(
+        report,
+        "{} lists {} revocations; servers given it (--tls-revoked; `vlnav up` reads it by itself) refuse \
+         them within a second and end their running calls",
+        path.display(),
+        list.entries.len()
+    );
+    Ok(report)
 }
 
 /// Each component with a certificate, and the Services it answers as
@@ -146,6 +228,45 @@ pub fn next_steps(args: &K8sCredentialsArgs, dir: &Path) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn revoking_writes_the_list_beside_the_ca_and_refuses_bad_input() {
+        let dir = tempfile::tempdir().unwrap();
+        let args = |f: &dyn Fn(&mut RevokeArgs)| {
+            let mut a = RevokeArgs { dir: dir.path().to_path_buf(), ..Default::default() };
+            f(&mut a);
+            a
+        };
+        let e = revoke(&args(&|a| a.robots = vec!["husky-1".into()])).unwrap_err().to_string();
+        assert!(e.contains("holds no ca.pem"), "{e}");
+        let pki = DevPki::ensure(dir.path(), &["husky-2"]).unwrap();
+        let e = revoke(&args(&|_| {})).unwrap_err().to_string();
+        assert!(e.contains("--robot ID, --service NAME or --cert FILE"), "{e}");
+        let e = revoke(&args(&|a| a.robots = vec!["../x".into()])).unwrap_err().to_string();
+        assert!(e.contains("--robot \"../x\""), "{e}");
+        let e = revoke(&args(&|a| a.services = vec!["".into()])).unwrap_err().to_string();
+        assert!(e.contains("--service \"\""), "{e}");
+        let e = format!("{:#}", revoke(&args(&|a| a.certs = vec![pki.robot_key("husky-2")])).unwrap_err());
+        assert!(e.contains("not an X.509 certificate"), "{e}");
+        assert!(!pki.revoked().exists(), "nothing written on bad input");
+
+        let out = revoke(&args(&|a| {
+            a.robots = vec!["husky-1".into()];
+            a.services = vec!["planner".into()];
+            a.certs = vec![pki.robot_cert("husky-2")];
+            a.reason = "lost".into();
+        }))
+        .unwrap();
+        assert!(out.contains("revoked spiffe://vlnav/robot/husky-1"), "{out}");
+        assert!(out.contains("lists 3 revocations"), "{out}");
+        let out = revoke(&args(&|a| a.robots = vec!["husky-1".into()])).unwrap();
+        assert!(out.contains("already revoked: spiffe://vlnav/robot/husky-1"), "{out}");
+        let list = vlnav_runtime::revocation::RevocationList::load(&pki.revoked()).unwrap();
+        assert_eq!(list.entries.len(), 3);
+        assert!(list.entries.iter().all(|e| e.reason == "lost" && e.revoked_unix.is_some()));
+        let husky2 = vlnav_runtime::revocation::CertificateId::of_pem_file(&pki.robot_cert("husky-2")).unwrap();
+        assert!(list.revokes(&husky2).unwrap().contains("certificate is revoked (lost)"));
+    }
 
     #[test]
     fn a_scaled_stage_is_named_by_its_headless_service_in_every_spelling() {

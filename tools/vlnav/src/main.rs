@@ -15,6 +15,10 @@ enum CredentialsCmd {
     /// Certificates (one CA, one per component, one per robot) and tokens
     /// for k8s/base, as Secrets in a kustomization (docs/security.md).
     K8s(vlnav::credentials::K8sCredentialsArgs),
+    /// Revoke a robot, a component or one certificate: writes
+    /// <dir>/revoked.toml, which servers read again within a second
+    /// (docs/security.md).
+    Revoke(vlnav::credentials::RevokeArgs),
 }
 
 #[derive(Subcommand)]
@@ -51,8 +55,9 @@ enum Cmd {
     /// Generated worlds: `vlnav worlds generate --family hall --count 20 --seed 0 --out DIR`.
     #[command(subcommand)]
     Worlds(WorldsCmd),
-    /// Issue credentials: `vlnav credentials k8s` writes the Secrets of a
-    /// Kubernetes deployment (certificates for every component, tokens).
+    /// Issue and revoke credentials: `vlnav credentials k8s` writes the
+    /// Secrets of a Kubernetes deployment (certificates for every component,
+    /// tokens); `vlnav credentials revoke` refuses a robot or component.
     #[command(subcommand)]
     Credentials(CredentialsCmd),
     /// Feed a mission recording's frames through a fresh gateway and stages
@@ -228,6 +233,10 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Credentials(CredentialsCmd::K8s(args)) => {
             let dir = vlnav::credentials::write_k8s(&args)?;
             eprintln!("{}", vlnav::credentials::next_steps(&args, &dir));
+            Ok(())
+        }
+        Cmd::Credentials(CredentialsCmd::Revoke(args)) => {
+            eprintln!("{}", vlnav::credentials::revoke(&args)?);
             Ok(())
         }
         Cmd::Replay(args) => {

@@ -158,7 +158,7 @@ pub struct Stack {
 impl Stack {
     /// Where the live view listens (`None`: off).
     pub fn live_view_addr(&self) -> Option<SocketAddr> {
-        self.gateway.fleet().viz().live_addr()
+        self.gateway.live_view_addr()
     }
 
     pub fn gateway_uri(&self) -> String {

@@ -22,7 +22,7 @@ fn a_move_starts_perceives_drives_and_completes_when_reached() {
                 forget: true
             },
             Request::Perceive { detect: None },
-            Request::Drive { goal: goal_of(&query) },
+            Request::Drive { goal: goal_of(&query), obstacles: Obstacles::default() },
         ]
     );
     assert_eq!(cmd, Command { twist: Twist { linear: 0.5, angular: 0.0 }, active: true, finished: None });
@@ -45,6 +45,42 @@ fn a_move_starts_perceives_drives_and_completes_when_reached() {
         }
         other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn a_frames_obstacles_go_with_its_drive_and_are_forgotten_at_the_next_frame() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(2.0, 0.0)]);
+    let seen = Obstacles { no_go: vec![Vector3::new(1.0, 0.2, 0.0)], people: vec![person(10.0, 30.0)] };
+    let stages = |perceived: Obstacles| {
+        move |r: &Request| -> Result<Reply, StageFailure> {
+            Ok(match r {
+                Request::StartStep { move_goal, .. } => Reply::StepStarted { goal: move_goal.as_ref().map(goal_of) },
+                Request::Perceive { .. } => Reply::Perceived { boxes: vec![], obstacles: perceived.clone() },
+                Request::Drive { .. } => driven(DriveStatus::Moving, 0.5, 2.0),
+                other => panic!("unexpected request {other:?}"),
+            })
+        }
+    };
+    let drives = |asked: Vec<Request>| -> Vec<Obstacles> {
+        asked
+            .into_iter()
+            .filter_map(|r| match r {
+                Request::Drive { obstacles, .. } => Some(obstacles),
+                _ => None,
+            })
+            .collect()
+    };
+    let (_, asked) = cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), stages(seen.clone()));
+    assert_eq!(drives(asked), vec![seen]);
+    // A frame whose perception fails drives nowhere; the next one drives with what it perceived.
+    let (_, asked) = cycle(&mut m, &p, at(0.1, 0.0, 0.0, 0.0), |r| match r {
+        Request::Perceive { .. } => Err(StageFailure { stage: "segmenter", message: "down".into() }),
+        other => stages(Obstacles::default())(other),
+    });
+    assert!(drives(asked).is_empty());
+    let (_, asked) = cycle(&mut m, &p, at(1.0, 0.0, 0.0, 0.0), stages(Obstacles::default()));
+    assert_eq!(drives(asked), vec![Obstacles::default()]);
 }
 
 #[test]
@@ -90,7 +126,9 @@ fn blocked_beside_the_goal(x: f64, y: f64, seconds: f64) -> (Mission, Vec<Event>
     let mut sees = |r: &Request| -> Result<Reply, StageFailure> {
         Ok(match r {
             Request::StartStep { move_goal: None, .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Perceive { .. } => {
+                Reply::Perceived { obstacles: Obstacles::default(), boxes: vec![chair(70.0, 95.0)] }
+            }
             Request::Locate { .. } => located(goal),
             Request::Drive { .. } => driven(DriveStatus::Blocked, 0.0, to_goal),
             other => panic!("unexpected {other:?}"),

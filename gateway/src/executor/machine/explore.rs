@@ -20,7 +20,7 @@ const SEARCH_MIN_SPEED: f64 = 0.2;
 
 /// The next phase of a fruitless search, given where the last one ended.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ExplorePlan {
+pub(crate) enum ExplorePlan {
     /// Turn once more (the scan turn number, 0-based) within the current look-around.
     Turn(u32),
     /// Drive one search leg (1-based leg number).
@@ -35,7 +35,7 @@ pub enum ExplorePlan {
 /// straight ahead. Toward a lead it goes half the way to the stopping
 /// distance, at least `search_leg_m`, never past that distance; a lead
 /// already within reach is not worth another look from the same place.
-pub fn search_leg(pose: Pose2, lead: Option<&Vector3<f64>>, d_s: f64, p: &ExecutorParams) -> MoveQuery {
+pub(crate) fn search_leg(pose: Pose2, lead: Option<&Vector3<f64>>, d_s: f64, p: &ExecutorParams) -> MoveQuery {
     let ahead = MoveQuery { anchor: pose, f_dist: p.search_leg_m, yaw: 0.0, d_s: 0.0 };
     let Some(t) = lead else { return ahead };
     let room = (t.x - pose.x).hypot(t.y - pose.y) - d_s;
@@ -48,7 +48,7 @@ pub fn search_leg(pose: Pose2, lead: Option<&Vector3<f64>>, d_s: f64, p: &Execut
 
 /// Bounded exploration schedule: `scan_turns` turns per look-around, then a
 /// search leg, up to `search_legs` legs, each followed by a new look-around.
-pub fn after_look(turn: u32, leg: u32, p: &ExecutorParams) -> ExplorePlan {
+pub(crate) fn after_look(turn: u32, leg: u32, p: &ExecutorParams) -> ExplorePlan {
     if turn + 1 < p.scan_turns {
         ExplorePlan::Turn(turn + 1)
     } else if leg < p.search_legs {
@@ -151,7 +151,7 @@ impl Mission {
                 self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0)))
             }
             Explore::Turn { goal, .. } | Explore::Search { goal, .. } => {
-                self.call(Pending::ExploreDriven(state), Request::Drive { goal })
+                self.call(Pending::ExploreDriven(state), self.drive(goal))
             }
             Explore::Look { frames_left, turn, leg, origin } if frames_left > 1 => {
                 f.explore = Explore::Look { frames_left: frames_left - 1, turn, leg, origin };

@@ -392,7 +392,7 @@ impl Mission {
             if moving {
                 return self.follow(stamp, goal);
             }
-            return self.call(Pending::FindPlanned { goal }, Request::Drive { goal });
+            return self.call(Pending::FindPlanned { goal }, self.drive(goal));
         }
         if waiting {
             // A candidate to confirm, or still looking from here: hold still.

@@ -27,14 +27,14 @@ fn a_target_is_confirmed_after_consecutive_sightings_then_approached() {
             Request::StartStep { move_goal: None, .. } => Reply::StepStarted { goal: None },
             Request::Perceive { detect: Some((56, score)) } => {
                 assert_eq!(*score, p.min_score);
-                Reply::Perceived { boxes: vec![chair(70.0, 95.0)] }
+                Reply::Perceived { obstacles: Obstacles::default(), boxes: vec![chair(70.0, 95.0)] }
             }
             Request::Locate { detection, d_s, moving: false, .. } => {
                 assert_eq!(detection.x_min, 70.0);
                 assert_eq!(*d_s, p.default_d_s);
                 located(goal)
             }
-            Request::Drive { goal: g } => {
+            Request::Drive { goal: g, .. } => {
                 drives += 1;
                 assert_eq!(g.pose, goal);
                 driven(DriveStatus::Moving, 0.6, 2.0)
@@ -64,7 +64,9 @@ fn intermittent_sightings_confirm_within_the_window_and_misses_do_not_count() {
     let mut flaky = |r: &Request| -> Result<Reply, StageFailure> {
         Ok(match r {
             Request::StartStep { .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Perceive { .. } => {
+                Reply::Perceived { obstacles: Obstacles::default(), boxes: vec![chair(70.0, 95.0)] }
+            }
             Request::Locate { .. } => {
                 k += 1;
                 every_other_without_depth(k)
@@ -99,7 +101,7 @@ fn a_candidate_another_class_outvotes_is_dropped_and_its_place_ignored() {
         cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), |r| {
             Ok(match r {
                 Request::StartStep { .. } => Reply::StepStarted { goal: None },
-                Request::Perceive { .. } => Reply::Perceived { boxes: boxes.clone() },
+                Request::Perceive { .. } => Reply::Perceived { obstacles: Obstacles::default(), boxes: boxes.clone() },
                 Request::Locate { track_key, .. } => {
                     keys.push(track_key.clone());
                     located(Pose2::new(2.0, 0.0, 0.0))
@@ -139,7 +141,9 @@ fn a_sighting_without_depth_breaks_the_streak() {
     let mut flaky = |r: &Request| -> Result<Reply, StageFailure> {
         Ok(match r {
             Request::StartStep { .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![chair(70.0, 95.0)] },
+            Request::Perceive { .. } => {
+                Reply::Perceived { obstacles: Obstacles::default(), boxes: vec![chair(70.0, 95.0)] }
+            }
             Request::Locate { .. } => {
                 k += 1;
                 every_other_without_depth(k)
@@ -161,7 +165,10 @@ fn a_named_person_is_located_in_the_box_reid_matches_only() {
     cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), |r| {
         Ok(match r {
             Request::StartStep { .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![person(10.0, 30.0), person(70.0, 95.0)] },
+            Request::Perceive { .. } => Reply::Perceived {
+                obstacles: Obstacles::default(),
+                boxes: vec![person(10.0, 30.0), person(70.0, 95.0)],
+            },
             Request::Identify { boxes, name } => {
                 assert_eq!((boxes.len(), name.as_str()), (2, "Alice"));
                 Reply::Identified(vec![
@@ -278,7 +285,9 @@ fn located_boxes(step: PlanStep, frames: u32, boxes: impl Fn(u32) -> Vec<Detecti
         cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), |r| {
             Ok(match r {
                 Request::StartStep { .. } => Reply::StepStarted { goal: None },
-                Request::Perceive { .. } => Reply::Perceived { boxes: frame_boxes.clone() },
+                Request::Perceive { .. } => {
+                    Reply::Perceived { obstacles: Obstacles::default(), boxes: frame_boxes.clone() }
+                }
                 Request::Locate { detection, track_key, .. } => {
                     out.push((detection.x_min, track_key.clone()));
                     // Where the located box is: left of the image is +y.

@@ -4,7 +4,7 @@
 use nalgebra::{Vector2, Vector3};
 
 use super::find::FindRun;
-use super::{Mission, Next, Pending, Request, bearing};
+use super::{Mission, Next, Pending, bearing};
 use crate::executor::model::*;
 
 /// A followed target unseen this long is not driven after: its goal is
@@ -66,9 +66,9 @@ impl Mission {
         let stale = f.last_seen.is_some_and(|t| stamp - t > FOLLOW_STALE_S);
         if let (true, Some(t)) = (stale, f.predicted(stamp)) {
             let face = self.facing(&t, &goal);
-            return self.call(Pending::FollowPlanned, Request::Drive { goal: face });
+            return self.call(Pending::FollowPlanned, self.drive(face));
         }
-        self.call(Pending::FollowPlanned, Request::Drive { goal })
+        self.call(Pending::FollowPlanned, self.drive(goal))
     }
 
     /// A turn in place, where the robot stands, to face `target` (odom).

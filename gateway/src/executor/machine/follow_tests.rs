@@ -10,7 +10,9 @@ fn follow_cycles(p: &ExecutorParams, follow: PlanStep) -> i32 {
     let near = |r: &Request| -> Result<Reply, StageFailure> {
         Ok(match r {
             Request::StartStep { .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![person(70.0, 95.0)] },
+            Request::Perceive { .. } => {
+                Reply::Perceived { obstacles: Obstacles::default(), boxes: vec![person(70.0, 95.0)] }
+            }
             Request::Locate { moving, .. } => {
                 assert!(moving);
                 located(Pose2::new(1.0, 0.0, 0.0))

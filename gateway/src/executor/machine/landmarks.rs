@@ -14,14 +14,14 @@ const LANDMARK_PLACES: usize = 64;
 /// class's boxes within `REFERENCE_SAME_M` of each other are one object,
 /// at their running mean.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Landmark {
-    pub class_id: i32,
+pub(crate) struct Landmark {
+    pub(crate) class_id: i32,
     /// Odom, on the floor.
-    pub at: Vector2<f64>,
+    pub(crate) at: Vector2<f64>,
     /// Frames a box of the class stood there.
-    pub sightings: u32,
+    pub(crate) sightings: u32,
     /// The plan step that saw it last.
-    pub step: usize,
+    pub(crate) step: usize,
 }
 
 /// Adds this frame's footprints (`class`, odom) seen by step `step` to `landmarks`.
@@ -57,7 +57,7 @@ pub(super) fn remember_landmarks(
 /// not see it: the nearest to `pose` of the objects of that class an
 /// earlier step saw in at least `min_sightings` frames (one stray box — a
 /// false positive — is not a place).
-pub fn remembered(
+pub(crate) fn remembered(
     landmarks: &[Landmark],
     class_id: i32,
     step: usize,

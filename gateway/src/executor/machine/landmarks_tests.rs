@@ -30,7 +30,7 @@ fn plant_step_after_the_chair(plant_frames: u32) -> (MoveQuery, Vec<Event>) {
         cycle(&mut m, &p, at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0), |r| {
             Ok(match r {
                 Request::StartStep { .. } => Reply::StepStarted { goal: None },
-                Request::Perceive { .. } => Reply::Perceived { boxes: boxes.clone() },
+                Request::Perceive { .. } => Reply::Perceived { obstacles: Obstacles::default(), boxes: boxes.clone() },
                 Request::Locate { .. } => located(Pose2::new(1.0, 0.0, 0.0)),
                 Request::Drive { .. } if reached => driven(DriveStatus::Reached, 0.0, 0.0),
                 Request::Drive { .. } => driven(DriveStatus::Moving, 0.5, 1.0),

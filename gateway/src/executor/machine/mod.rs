@@ -84,11 +84,10 @@ mod metrics;
 #[cfg(test)]
 mod test_support;
 
-pub use explore::{ExplorePlan, after_look, search_leg};
-pub use landmarks::{Landmark, remembered};
+pub(crate) use landmarks::{Landmark, remembered};
 
 /// Sensor seconds a stage may stay unreachable before the mission fails.
-pub const STAGE_OUTAGE_S: f64 = 10.0;
+pub(crate) const STAGE_OUTAGE_S: f64 = 10.0;
 /// The first retry after a stage failed waits this long, sensor seconds; each
 /// further failure doubles the wait, up to `STAGE_RETRY_MAX_S`.
 const STAGE_RETRY_S: f64 = 0.1;
@@ -102,16 +101,16 @@ const REFERENCE_PLACES: usize = 16;
 
 /// A goal relative to `anchor`: turn by `yaw`, then drive `f_dist` metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct MoveQuery {
-    pub anchor: Pose2,
-    pub f_dist: f64,
-    pub yaw: f64,
-    pub d_s: f64,
+pub(crate) struct MoveQuery {
+    pub(crate) anchor: Pose2,
+    pub(crate) f_dist: f64,
+    pub(crate) yaw: f64,
+    pub(crate) d_s: f64,
 }
 
 /// What the machine needs from the stages, about the current frame.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Request {
+pub(crate) enum Request {
     /// A step begins: for a MOVE, turn `move_goal` into an odometry goal.
     /// With `forget` (the mission's first step) the local planner first
     /// forgets this robot's state. Later steps keep it: odometry runs on
@@ -123,8 +122,8 @@ pub enum Request {
     StartStep { index: u32, action: Action, desc: String, move_goal: Option<MoveQuery>, forget: bool },
     /// Segment the frame into no-go points and detect: for a FIND every
     /// class at `min_score` (the step's `class_id` is the target; the others
-    /// vote against it), otherwise people only; all at once. The adapter
-    /// keeps the no-go points and person boxes for this frame's `Drive`.
+    /// vote against it), otherwise people only; all at once. The reply's
+    /// no-go points and person boxes go with this frame's `Drive`.
     Perceive { detect: Option<(i32, f32)> },
     /// Which of `boxes` is the person `name`.
     Identify { boxes: Vec<Detection>, name: String },
@@ -133,48 +132,62 @@ pub enum Request {
     Locate { track_key: String, detection: Detection, d_s: f64, moving: bool },
     /// An odometry goal for an exploration turn or search leg.
     MoveGoal(MoveQuery),
-    /// One local-planner step toward `goal` on this frame's depth and no-go points.
-    Drive { goal: Goal },
+    /// One local-planner step toward `goal` on this frame's depth, keeping
+    /// clear of the frame's `obstacles` (as `Perceive` found them; none when
+    /// nothing was perceived on this frame).
+    Drive { goal: Goal, obstacles: Obstacles },
 }
 
 /// The stages' answer to a [`Request`].
 #[derive(Clone, Debug, PartialEq)]
-pub enum Reply {
-    StepStarted { goal: Option<Goal> },
-    Perceived { boxes: Vec<Detection> },
+pub(crate) enum Reply {
+    StepStarted {
+        goal: Option<Goal>,
+    },
+    /// The boxes asked for (none outside a FIND) and what the local planner
+    /// must keep clear of.
+    Perceived {
+        boxes: Vec<Detection>,
+        obstacles: Obstacles,
+    },
     Identified(Vec<Identity>),
     Located(Estimate),
     Goal(Goal),
-    Driven(DriveAnswer),
+    /// The local planner's step and the primitive it chose (`base_link`),
+    /// which only the live view draws.
+    Driven {
+        answer: DriveAnswer,
+        path: Vec<[f64; 2]>,
+    },
 }
 
 /// A stage service failed for this frame.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[error("the {stage} service failed: {message}")]
-pub struct StageFailure {
-    pub stage: &'static str,
-    pub message: String,
+pub(crate) struct StageFailure {
+    pub(crate) stage: &'static str,
+    pub(crate) message: String,
 }
 
 /// The frame's answer to the robot.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Command {
-    pub twist: Twist,
+pub(crate) struct Command {
+    pub(crate) twist: Twist,
     /// False while the robot may idle (waiting for the user or for a stage).
-    pub active: bool,
+    pub(crate) active: bool,
     /// Set when the mission reached a terminal state on this frame.
-    pub finished: Option<Outcome>,
+    pub(crate) finished: Option<Outcome>,
 }
 
 #[derive(Clone, Debug, PartialEq)]
-pub enum Next {
+pub(crate) enum Next {
     Call(Request),
     Done(Command),
 }
 
 /// What the planner is asked after the user answered a question.
 #[derive(Clone, Debug, PartialEq)]
-pub enum PlannerQuery {
+pub(crate) enum PlannerQuery {
     /// The question came before anything ran: the answer is the instruction now.
     Plan { instruction: String },
     /// Revise the plan from the step that failed.
@@ -182,14 +195,14 @@ pub enum PlannerQuery {
 }
 
 #[derive(Clone, Debug, PartialEq)]
-pub enum PlannerReply {
+pub(crate) enum PlannerReply {
     Plan { steps: Vec<PlanStep>, plan_json: String },
     Question(Question),
 }
 
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[error("mission {0} is not waiting for an answer")]
-pub struct NotAwaiting(pub String);
+pub(crate) struct NotAwaiting(pub String);
 
 #[derive(Debug)]
 enum StepRun {
@@ -251,7 +264,7 @@ struct Outage {
 
 /// One mission on one robot.
 #[derive(Debug)]
-pub struct Mission {
+pub(crate) struct Mission {
     mission_id: String,
     instruction: String,
     plan: Vec<PlanStep>,
@@ -273,13 +286,20 @@ pub struct Mission {
     started: bool,
     /// The frame being handled and where its work stands.
     frame: Frame,
+    /// What this frame's perception found for its local-planner step.
+    obstacles: Obstacles,
     pending: Option<Pending>,
     events: Vec<Stamped>,
 }
 
 impl Mission {
     /// A mission running `plan`; `question` holds one asked before execution.
-    pub fn new(mission_id: String, instruction: String, plan: Vec<PlanStep>, question: Option<Question>) -> Self {
+    pub(crate) fn new(
+        mission_id: String,
+        instruction: String,
+        plan: Vec<PlanStep>,
+        question: Option<Question>,
+    ) -> Self {
         Self {
             mission_id,
             instruction,
@@ -299,26 +319,27 @@ impl Mission {
             outage: None,
             started: false,
             frame: Frame::default(),
+            obstacles: Obstacles::default(),
             pending: None,
             events: Vec::new(),
         }
     }
 
-    pub fn is_awaiting(&self) -> bool {
+    pub(crate) fn is_awaiting(&self) -> bool {
         self.awaiting.is_some()
     }
 
     /// Whether a step is under way (its trace span is the parent of this frame's work).
-    pub fn has_step(&self) -> bool {
+    pub(crate) fn has_step(&self) -> bool {
         self.step.is_some()
     }
 
-    pub fn plan(&self) -> &[PlanStep] {
+    pub(crate) fn plan(&self) -> &[PlanStep] {
         &self.plan
     }
 
     /// The events since the last call, in order.
-    pub fn take_events(&mut self) -> Vec<Stamped> {
+    pub(crate) fn take_events(&mut self) -> Vec<Stamped> {
         std::mem::take(&mut self.events)
     }
 
@@ -327,7 +348,7 @@ impl Mission {
     }
 
     /// Ends the mission with `outcome`, stamped with the last frame's time.
-    pub fn finish(&mut self, outcome: Outcome, reason: String) {
+    pub(crate) fn finish(&mut self, outcome: Outcome, reason: String) {
         let stamp = self.metrics.last_stamp;
         let metrics = self.metrics();
         let current_step = self.index as u32;
@@ -336,7 +357,7 @@ impl Mission {
         self.pending = None;
     }
 
-    pub fn cancel(&mut self) {
+    pub(crate) fn cancel(&mut self) {
         self.finish(Outcome::Cancelled, "cancelled by the user; the robot was stopped".into());
     }
 
@@ -355,9 +376,15 @@ impl Mission {
         Next::Call(request)
     }
 
+    /// A local-planner step toward `goal`, clear of this frame's obstacles.
+    fn drive(&self, goal: Goal) -> Request {
+        Request::Drive { goal, obstacles: self.obstacles.clone() }
+    }
+
     /// A new sensor frame: the start of one control cycle.
-    pub fn on_frame(&mut self, p: &ExecutorParams, frame: Frame) -> Next {
+    pub(crate) fn on_frame(&mut self, p: &ExecutorParams, frame: Frame) -> Next {
         self.pending = None;
+        self.obstacles = Obstacles::default();
         if self.awaiting.is_some() {
             return Next::Done(Command { twist: Twist::ZERO, active: false, finished: None });
         }
@@ -386,7 +413,7 @@ impl Mission {
 
     /// A stage failed: hold the robot, try again later in sensor time, and
     /// fail the mission when the outage outlasts `STAGE_OUTAGE_S`.
-    pub fn on_stage_error(&mut self, failure: StageFailure) -> Next {
+    pub(crate) fn on_stage_error(&mut self, failure: StageFailure) -> Next {
         self.pending = None;
         let stamp = self.frame.stamp;
         let o = self.outage.get_or_insert(Outage { since: stamp, failures: 0, last: failure.clone(), retry_at: stamp });
@@ -545,19 +572,22 @@ impl Mission {
     }
 
     /// The stages' answer to the last request.
-    pub fn on_reply(&mut self, p: &ExecutorParams, reply: Reply) -> Next {
+    pub(crate) fn on_reply(&mut self, p: &ExecutorParams, mut reply: Reply) -> Next {
+        if let Reply::Perceived { obstacles, .. } = &mut reply {
+            self.obstacles = std::mem::take(obstacles);
+        }
         let Some(pending) = self.pending.take() else { return self.hold() };
         match (pending, reply) {
             (Pending::Start { step, anchor, d_s }, Reply::StepStarted { goal }) => {
                 self.step_started(p, step, anchor, d_s, goal)
             }
             (Pending::DrivePerceived { goal }, Reply::Perceived { .. }) => {
-                self.call(Pending::DrivePlanned { goal }, Request::Drive { goal })
+                self.call(Pending::DrivePlanned { goal }, self.drive(goal))
             }
-            (Pending::DrivePlanned { goal } | Pending::FindPlanned { goal }, Reply::Driven(answer)) => {
+            (Pending::DrivePlanned { goal } | Pending::FindPlanned { goal }, Reply::Driven { answer, .. }) => {
                 self.drive_outcome(p, &goal, answer)
             }
-            (Pending::FindPerceived, Reply::Perceived { boxes }) => self.find_box(p, boxes),
+            (Pending::FindPerceived, Reply::Perceived { boxes, .. }) => self.find_box(p, boxes),
             (Pending::FindIdentified { boxes }, Reply::Identified(identities)) => {
                 let Some(f) = self.find() else { return self.hold() };
                 let best = identities
@@ -576,13 +606,13 @@ impl Mission {
                 let usable = matches!(est.status, EstimateStatus::Ok | EstimateStatus::Outlier) && est.goal.is_some();
                 self.observed(p, usable.then_some((detection, identity, similarity, est)))
             }
-            (Pending::FollowPlanned, Reply::Driven(answer)) => {
+            (Pending::FollowPlanned, Reply::Driven { answer, .. }) => {
                 // Following: being within d_s is where we want to stay, not the end.
                 let twist = if answer.status == DriveStatus::Reached { Twist::ZERO } else { answer.cmd };
                 self.done(twist, None)
             }
             (Pending::ExploreGoal(what), Reply::Goal(goal)) => self.explore_goal(what, goal),
-            (Pending::ExploreDriven(state), Reply::Driven(answer)) => self.explore_driven(p, state, answer),
+            (Pending::ExploreDriven(state), Reply::Driven { answer, .. }) => self.explore_driven(p, state, answer),
             (pending, reply) => {
                 tracing::error!(mission = %self.mission_id, ?pending, ?reply, "a stage reply that answers nothing asked");
                 self.on_stage_error(StageFailure { stage: "gateway", message: "an answer out of order".into() })
@@ -621,7 +651,7 @@ impl Mission {
     }
 
     /// What to ask the planner with the user's answer.
-    pub fn planner_query(&self, answer: &str) -> Result<PlannerQuery, NotAwaiting> {
+    pub(crate) fn planner_query(&self, answer: &str) -> Result<PlannerQuery, NotAwaiting> {
         let Some((_, failure)) = self.awaiting.as_ref() else { return Err(NotAwaiting(self.mission_id.clone())) };
         Ok(if self.plan.is_empty() {
             PlannerQuery::Plan { instruction: answer.to_string() }
@@ -638,7 +668,7 @@ impl Mission {
 
     /// The planner's answer to [`Mission::planner_query`]: the revised full
     /// plan (the mission resumes at the step that failed), or a further question.
-    pub fn on_planner_reply(&mut self, answer: &str, reply: PlannerReply) -> Result<Vec<PlanStep>, Question> {
+    pub(crate) fn on_planner_reply(&mut self, answer: &str, reply: PlannerReply) -> Result<Vec<PlanStep>, Question> {
         let stamp = self.metrics.last_stamp;
         match reply {
             PlannerReply::Plan { steps, plan_json } => {

@@ -43,13 +43,7 @@ pub(super) fn camera() -> Camera {
 }
 
 pub(super) fn at(stamp: f64, x: f64, y: f64, theta: f64) -> Frame {
-    Frame {
-        seq: (stamp * 10.0).round() as u64,
-        stamp,
-        pose: Pose2::new(x, y, theta),
-        camera: Some(camera()),
-        truth: None,
-    }
+    Frame { stamp, pose: Pose2::new(x, y, theta), camera: Some(camera()), truth: None }
 }
 
 pub(super) fn mission(plan: Vec<PlanStep>) -> Mission {
@@ -70,14 +64,15 @@ pub(super) fn goal_of(q: &MoveQuery) -> Goal {
 }
 
 pub(super) fn driven(status: DriveStatus, linear: f64, distance_to_goal: f64) -> Reply {
-    Reply::Driven(DriveAnswer {
+    let answer = DriveAnswer {
         status,
         cmd: Twist { linear, angular: 0.0 },
         path_id: 0,
         distance_to_goal,
         heading_error: 0.0,
         free_paths: 10,
-    })
+    };
+    Reply::Driven { answer, path: Vec::new() }
 }
 
 pub(super) fn chair(x_min: f32, x_max: f32) -> Detection {
@@ -133,9 +128,9 @@ pub(super) fn blind(drive: impl Fn(&Goal) -> Reply) -> impl FnMut(&Request) -> R
     move |r| {
         Ok(match r {
             Request::StartStep { move_goal, .. } => Reply::StepStarted { goal: move_goal.as_ref().map(goal_of) },
-            Request::Perceive { .. } => Reply::Perceived { boxes: vec![] },
+            Request::Perceive { .. } => Reply::Perceived { obstacles: Obstacles::default(), boxes: vec![] },
             Request::MoveGoal(q) => Reply::Goal(goal_of(q)),
-            Request::Drive { goal } => drive(goal),
+            Request::Drive { goal, .. } => drive(goal),
             other => panic!("unexpected request {other:?}"),
         })
     }
@@ -155,7 +150,7 @@ pub(super) fn tally(
     move |r| {
         Ok(match r {
             Request::StartStep { .. } => Reply::StepStarted { goal: None },
-            Request::Perceive { .. } => Reply::Perceived { boxes: boxes.clone() },
+            Request::Perceive { .. } => Reply::Perceived { obstacles: Obstacles::default(), boxes: boxes.clone() },
             Request::Locate { .. } => {
                 let t = target(f);
                 Reply::Located(Estimate {
