@@ -180,6 +180,7 @@ impl Stages<'_> {
                     Ok(pb::LocalPlanStatus::Reached) => DriveStatus::Reached,
                     Ok(pb::LocalPlanStatus::Blocked) => DriveStatus::Blocked,
                     Ok(pb::LocalPlanStatus::NoProgress) => DriveStatus::NoProgress,
+                    Ok(pb::LocalPlanStatus::Waiting) => DriveStatus::Waiting,
                     _ => DriveStatus::Unspecified,
                 };
                 let answer = DriveAnswer {

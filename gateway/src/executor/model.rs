@@ -131,6 +131,9 @@ pub(crate) enum DriveStatus {
     Reached,
     Blocked,
     NoProgress,
+    /// Stopped for a person in the way: no lack of progress, waited for
+    /// within a bound (`drive.rs`).
+    Waiting,
 }
 
 /// What the current frame's perception found that its local-planner step

@@ -217,6 +217,8 @@ struct Active {
     progress: Option<(f64, f64)>,
     /// Since when the local planner has said Blocked or NoProgress without a break.
     stuck_since: Option<f64>,
+    /// Since when the local planner has said Waiting (for a person) without a break.
+    waiting_since: Option<f64>,
     run: StepRun,
 }
 
@@ -529,7 +531,8 @@ impl Mission {
             tracing::debug!(mission = %self.mission_id, step = index, revisit = ?f.revisit, landmarks = ?self.landmarks, "find starts");
         }
         self.emit(Event::StepStarted { index, step, anchor });
-        self.step = Some(Active { started: self.frame.stamp, progress: None, stuck_since: None, run });
+        self.step =
+            Some(Active { started: self.frame.stamp, progress: None, stuck_since: None, waiting_since: None, run });
         self.continue_step(p)
     }
 

@@ -25,6 +25,21 @@ use super::guard::arc_pose;
 use super::{FollowParams, RobotState, StepInput};
 
 impl RobotState {
+    /// Whether someone is within `PeopleParams::yield_m` of the robot's
+    /// centre — tracked now (standing or walking, where the tracker expects
+    /// them), or seen there within `PeopleParams::recall_s` (a person beside
+    /// the robot is out of the camera's view): a BLOCKED or NO_PROGRESS step
+    /// is then WAITING for them (docs/design.md §4, "People in the way").
+    /// People step aside and walk on; a way blocked by furniture does not
+    /// clear by itself.
+    pub(super) fn person_in_the_way(&self, input: &StepInput<'_>, p: &FollowParams) -> bool {
+        let near = self.people.person_near(input.stamp, &input.pose, p.people.yield_m, &p.people);
+        if near {
+            tracing::debug!(stamp = input.stamp, "stopped for a person in the way");
+        }
+        near
+    }
+
     /// Whether the command (v, ω), held for `PeopleParams::horizon_s`,
     /// brings the robot's body nearer a walker than their reach and nearer
     /// than standing still would (see the module docs). Logged at debug level.
