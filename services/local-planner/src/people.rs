@@ -88,6 +88,20 @@ pub struct PeopleParams {
     /// tracker drops them after `keep_s`) is most often still there,
     /// waiting for the robot as it waits for them.
     pub recall_s: f64,
+    /// Near people the robot slows (`control/walkers.rs`): within
+    /// `slow_gap_m` of clearance between its body and a person (their
+    /// radius taken off) it drives and swings its corners no faster than
+    /// `slow_mps`, and `slow_per_m` m/s faster per metre of clearance
+    /// beyond. 0.3 m/s stops within one frame and 5 cm (1 m/s²), so a
+    /// person who steps towards the robot meets a robot already standing.
+    pub slow_gap_m: f64,
+    pub slow_mps: f64,
+    pub slow_per_m: f64,
+    /// How long a person's place counts for slowing once out of view, s:
+    /// a person beside the robot is out of the camera's ±43°; at a walking
+    /// pace they are elsewhere after a few seconds. A place the camera
+    /// looks at again and finds empty is forgotten at once.
+    pub slow_recall_s: f64,
 }
 
 impl Default for PeopleParams {
@@ -109,6 +123,10 @@ impl Default for PeopleParams {
             near_walker_mps: 0.6,
             yield_m: 2.5,
             recall_s: 10.0,
+            slow_gap_m: 0.5,
+            slow_mps: 0.3,
+            slow_per_m: 0.7,
+            slow_recall_s: 4.0,
         }
     }
 }
@@ -224,6 +242,23 @@ impl Tracker {
         let recalled =
             self.recalled.iter().any(|(s, q)| stamp - s <= p.recall_s && (q - pose.position()).norm() < range);
         recalled || self.people_at(stamp, pose, p).iter().any(|q| q.norm() < range)
+    }
+
+    /// Forgets the recalled places not sighted at `stamp` for which
+    /// `looked_empty` holds (`odom`): the camera looked there this frame and
+    /// no person stands there any more.
+    pub fn forget_looked_at(&mut self, stamp: f64, looked_empty: impl Fn(&Vector2<f64>) -> bool) {
+        self.recalled.retain(|(s, q)| *s == stamp || !looked_empty(q));
+    }
+
+    /// Where people are or may be at `stamp`, in `pose`'s frame: everyone
+    /// tracked (`people_at`) and the places seen within `slow_recall_s`.
+    pub fn people_around(&self, stamp: f64, pose: &Pose2, p: &PeopleParams) -> Vec<Vector2<f64>> {
+        let mut all = self.people_at(stamp, pose, p);
+        all.extend(
+            self.recalled.iter().filter(|(s, _)| stamp - s <= p.slow_recall_s).map(|(_, q)| pose.inverse_transform(q)),
+        );
+        all
     }
 
     /// Every walker's expected place `ahead` s after `stamp`, carried on
@@ -376,5 +411,23 @@ mod tests {
         assert!(!t.person_near(10.0, &Pose2::new(-3.0, 0.0, 0.0), pp.yield_m, &pp), "farther than yield_m");
         t.update(11.0, &[], &pp);
         assert!(!t.person_near(11.0, &pose, pp.yield_m, &pp), "forgotten after recall_s");
+    }
+
+    #[test]
+    fn a_recalled_place_looked_at_and_empty_is_forgotten_one_sighted_now_is_kept() {
+        let (pp, pose) = (p(), Pose2::new(0.0, 0.0, 0.0));
+        let mut t = Tracker::default();
+        for k in 0..5 {
+            t.update(0.2 * f64::from(k), &[Some(Vector2::new(1.0, 0.5))], &pp);
+        }
+        // Seen this frame: kept whatever the check says.
+        t.forget_looked_at(0.8, |_| true);
+        assert!(t.person_near(0.8, &pose, pp.yield_m, &pp));
+        t.update(1.0, &[], &pp);
+        // Not looked at: kept.
+        t.forget_looked_at(1.0, |_| false);
+        assert_eq!(t.people_around(1.0, &pose, &pp).len(), 2, "the track and its recalled place");
+        t.forget_looked_at(1.0, |_| true);
+        assert_eq!(t.people_around(1.0, &pose, &pp).len(), 1, "the track only");
     }
 }

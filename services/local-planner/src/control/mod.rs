@@ -146,6 +146,18 @@ impl RobotState {
 
     /// Plans one step. `cloud` replaces the stored cloud.
     pub fn step(&mut self, planner: &Planner, p: &FollowParams, input: StepInput<'_>) -> StepOutput {
+        let mut out = self.plan_step(planner, p, &input);
+        let (v, w) = self.slow_near_people(&input, out.linear, out.angular, p);
+        if (v, w) != (out.linear, out.angular) {
+            (out.linear, out.angular) = (v, w);
+            self.last_speed = self.last_speed.min(v.abs());
+        }
+        out
+    }
+
+    /// One step's command before slowing near people.
+    fn plan_step(&mut self, planner: &Planner, p: &FollowParams, input: &StepInput<'_>) -> StepOutput {
+        let input = input.clone();
         let dt = self.begin_frame(&input, p);
         self.cloud = self.merge_memory(input.cloud, &input, p);
         if p.detour {

@@ -14,6 +14,10 @@
 //! Within `PeopleParams::near_walker_m` of a walker the speed is capped
 //! at `PeopleParams::near_walker_mps`, from which the robot stops within
 //! the straying the reach test allows them.
+//! Near anyone tracked, or seen within `PeopleParams::slow_recall_s` and
+//! not looked at since, every command is slowed with the clearance
+//! (`PeopleParams::slow_gap_m`): out of the camera's view beside a turning
+//! robot, a person is where its corners swing.
 //! A walker's cells stay ordinary cells in the memory: forgetting them
 //! out of view once they walked (they had gone on) raised the crossing
 //! hall's success but let the robot turn into people who had stopped
@@ -25,6 +29,38 @@ use super::guard::arc_pose;
 use super::{FollowParams, RobotState, StepInput};
 
 impl RobotState {
+    /// The command slowed near people (`PeopleParams::slow_gap_m`): for
+    /// each person tracked or recalled (`Tracker::people_around`), the
+    /// clearance between the body and them caps the speed toward them
+    /// (ahead of the rear axle driving forward, behind the front one
+    /// backing) and the corners' speed while turning; (v, ω) are scaled
+    /// together, so the arc the guard passed is kept.
+    pub(super) fn slow_near_people(&self, input: &StepInput<'_>, v: f64, w: f64, p: &FollowParams) -> (f64, f64) {
+        let pp = &p.people;
+        if v == 0.0 && w == 0.0 {
+            return (0.0, 0.0);
+        }
+        let corner = p.half_length_m.hypot(p.half_width_m);
+        let mut scale: f64 = 1.0;
+        for q in self.people.people_around(input.stamp, &input.pose, pp) {
+            let gap = Vector2::new((q.x.abs() - p.half_length_m).max(0.0), (q.y.abs() - p.half_width_m).max(0.0))
+                .norm()
+                - pp.radius_m;
+            let cap = pp.slow_mps + pp.slow_per_m * (gap - pp.slow_gap_m).max(0.0);
+            let toward = (v > 0.0 && q.x > -p.half_length_m) || (v < 0.0 && q.x < p.half_length_m);
+            if toward && v.abs() > cap {
+                scale = scale.min(cap / v.abs());
+            }
+            if w.abs() * corner > cap {
+                scale = scale.min(cap / (w.abs() * corner));
+            }
+        }
+        if scale < 1.0 {
+            tracing::debug!(stamp = input.stamp, v, w, scale, "slowed near a person");
+        }
+        (v * scale, w * scale)
+    }
+
     /// Whether someone is within `PeopleParams::yield_m` of the robot's
     /// centre — tracked now (standing or walking, where the tracker expects
     /// them), or seen there within `PeopleParams::recall_s` (a person beside
@@ -75,5 +111,75 @@ impl RobotState {
             tracing::debug!(stamp = input.stamp, v, w, "waiting for a walking person");
         }
         closer
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector2;
+
+    use super::super::test_support::turn_in_place_to;
+    use super::super::{FollowParams, RobotState};
+    use crate::cloud::ObstacleCloud;
+
+    /// A robot at the origin that saw a person standing at `at` (`odom`)
+    /// in frames up to `seen_until` s.
+    fn saw(at: Vector2<f64>, seen_until: f64, p: &FollowParams) -> RobotState {
+        let mut state = RobotState::default();
+        for k in 0..5 {
+            state.people.update(seen_until - 0.2 * f64::from(4 - k), &[Some(at)], &p.people);
+        }
+        state
+    }
+
+    #[test]
+    fn near_a_person_the_robot_drives_and_turns_slowly() {
+        let p = FollowParams::default();
+        let empty = ObstacleCloud::default();
+        let input = turn_in_place_to(1.0, &empty);
+        let corner = p.half_length_m.hypot(p.half_width_m);
+        // Beside the robot (0.6 m to its right): the turn swings a corner
+        // at most `slow_mps`, the forward command is slowed as much.
+        let beside = saw(Vector2::new(0.2, -0.6), 0.0, &p);
+        let (v, w) = beside.slow_near_people(&input, 0.0, 1.5, &p);
+        assert_eq!(v, 0.0);
+        assert!((w * corner - p.people.slow_mps).abs() < 1e-9, "corner speed {}", w * corner);
+        let (v, w) = beside.slow_near_people(&input, 1.0, 0.5, &p);
+        assert!(v <= p.people.slow_mps + 1e-9 && (w / v - 0.5).abs() < 1e-9, "the arc kept: {v} {w}");
+        // Behind the robot, driving away: no slower; backing towards them: slow.
+        let behind = saw(Vector2::new(-1.2, 0.0), 0.0, &p);
+        assert_eq!(behind.slow_near_people(&input, 1.0, 0.0, &p), (1.0, 0.0));
+        assert!(behind.slow_near_people(&input, -0.5, 0.0, &p).0 > -0.5);
+        // Three metres off: no slower.
+        let far = saw(Vector2::new(3.5, 0.0), 0.0, &p);
+        assert_eq!(far.slow_near_people(&input, 1.0, 0.3, &p), (1.0, 0.3));
+    }
+
+    #[test]
+    fn a_person_out_of_view_slows_the_robot_until_recall_runs_out_or_the_camera_looks() {
+        let p = FollowParams::default();
+        let empty = ObstacleCloud::default();
+        let at = Vector2::new(0.2, -0.7);
+        let mut state = saw(at, 0.0, &p);
+        // Unseen since (out of view beside the robot): still slowed after
+        // the track is dropped (keep_s), no more after slow_recall_s.
+        for k in 1..=15 {
+            state.people.update(0.2 * f64::from(k), &[], &p.people);
+        }
+        let input = |stamp: f64| {
+            let mut i = turn_in_place_to(1.0, &empty);
+            i.stamp = stamp;
+            i
+        };
+        assert!(state.people.people_at(3.0, &input(3.0).pose, &p.people).is_empty());
+        assert!(state.slow_near_people(&input(3.0), 0.0, 1.5, &p).1 < 1.0);
+        assert_eq!(state.slow_near_people(&input(p.people.slow_recall_s + 0.1), 0.0, 1.5, &p).1, 1.5);
+        // Looked at again (after the track went) and nobody there: the
+        // recalled place is forgotten at once.
+        let mut looked = saw(at, 0.0, &p);
+        looked.people.update(2.5, &[], &p.people);
+        assert!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).1 < 1.0);
+        looked.people.forget_looked_at(2.5, |q| (q - at).norm() < 0.1);
+        assert_eq!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).1, 1.5);
     }
 }
