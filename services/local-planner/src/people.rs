@@ -102,6 +102,9 @@ pub struct PeopleParams {
     /// pace they are elsewhere after a few seconds. A place the camera
     /// looks at again and finds empty is forgotten at once.
     pub slow_recall_s: f64,
+    /// No command may bring the body nearer a person than this clearance
+    /// (and nearer than it is), m: the robot stops for them (WAITING).
+    pub touch_m: f64,
 }
 
 impl Default for PeopleParams {
@@ -127,6 +130,7 @@ impl Default for PeopleParams {
             slow_mps: 0.3,
             slow_per_m: 0.7,
             slow_recall_s: 4.0,
+            touch_m: 0.2,
         }
     }
 }

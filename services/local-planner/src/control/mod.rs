@@ -146,19 +146,29 @@ impl RobotState {
 
     /// Plans one step. `cloud` replaces the stored cloud.
     pub fn step(&mut self, planner: &Planner, p: &FollowParams, input: StepInput<'_>) -> StepOutput {
-        let mut out = self.plan_step(planner, p, &input);
-        let (v, w) = self.slow_near_people(&input, out.linear, out.angular, p);
-        if (v, w) != (out.linear, out.angular) {
-            (out.linear, out.angular) = (v, w);
-            self.last_speed = self.last_speed.min(v.abs());
+        let dt = self.begin_frame(&input, p);
+        let mut out = self.plan_step(planner, p, &input, dt);
+        let near = self.slow_near_people(&input, out.linear, out.angular, p);
+        let blocked = matches!(out.status, StepStatus::Blocked | StepStatus::NoProgress);
+        if near.touches || (blocked && self.person_in_the_way(&input, p)) {
+            // Stopped for a person: WAITING, and after a while giving way.
+            out = self.stop(out, StepStatus::Waiting);
+            let (v, w) = self.yield_to_person(&input, p, dt);
+            let near = self.slow_near_people(&input, v, w, p);
+            (out.linear, out.angular) = if near.touches { (0.0, 0.0) } else { (near.v, near.w) };
+        } else {
+            self.not_waiting(input.stamp);
+            if (near.v, near.w) != (out.linear, out.angular) {
+                (out.linear, out.angular) = (near.v, near.w);
+                self.last_speed = self.last_speed.min(near.v.abs());
+            }
         }
         out
     }
 
-    /// One step's command before slowing near people.
-    fn plan_step(&mut self, planner: &Planner, p: &FollowParams, input: &StepInput<'_>) -> StepOutput {
+    /// One step's command before it is slowed, or stopped, for people.
+    fn plan_step(&mut self, planner: &Planner, p: &FollowParams, input: &StepInput<'_>, dt: f64) -> StepOutput {
         let input = input.clone();
-        let dt = self.begin_frame(&input, p);
         self.cloud = self.merge_memory(input.cloud, &input, p);
         if p.detour {
             self.update_grid(&input, p);
@@ -210,12 +220,6 @@ impl RobotState {
             if let Some((_, left)) = self.detour_target(&input, &goal_at, p) {
                 out.distance_to_goal = left;
             }
-        }
-        if matches!(out.status, StepStatus::Blocked | StepStatus::NoProgress) && self.person_in_the_way(&input, p) {
-            out = self.stop(out, StepStatus::Waiting);
-            (out.linear, out.angular) = self.yield_to_person(&input, p, dt);
-        } else {
-            self.not_waiting(input.stamp);
         }
         out
     }

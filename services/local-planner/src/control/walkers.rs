@@ -28,25 +28,48 @@ use nalgebra::Vector2;
 use super::guard::arc_pose;
 use super::{FollowParams, RobotState, StepInput};
 
+/// How far ahead a command is carried on for whether it touches a
+/// person, s: one frame and the stop from the slow speed near people.
+const TOUCH_HORIZON_S: f64 = 0.5;
+
+/// A command after slowing near people, and whether it would touch one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct NearPeople {
+    pub(super) v: f64,
+    pub(super) w: f64,
+    pub(super) touches: bool,
+}
+
 impl RobotState {
     /// The command slowed near people (`PeopleParams::slow_gap_m`): for
     /// each person tracked or recalled (`Tracker::people_around`), the
     /// clearance between the body and them caps the speed toward them
     /// (ahead of the rear axle driving forward, behind the front one
     /// backing) and the corners' speed while turning; (v, ω) are scaled
-    /// together, so the arc the guard passed is kept.
-    pub(super) fn slow_near_people(&self, input: &StepInput<'_>, v: f64, w: f64, p: &FollowParams) -> (f64, f64) {
+    /// together, so the arc the guard passed is kept. A command that,
+    /// slowed and held for `TOUCH_HORIZON_S`, brings the body nearer a person than
+    /// `PeopleParams::touch_m` and nearer than it is now `touches`: the
+    /// robot stops for them instead (a person who stepped against a
+    /// stopped robot, which then crept on into them).
+    pub(super) fn slow_near_people(&self, input: &StepInput<'_>, v: f64, w: f64, p: &FollowParams) -> NearPeople {
+        const SAMPLES: usize = 5;
         let pp = &p.people;
+        let mut near = NearPeople { v, w, touches: false };
         if v == 0.0 && w == 0.0 {
-            return (0.0, 0.0);
+            return near;
         }
         let corner = p.half_length_m.hypot(p.half_width_m);
+        let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| {
+            let (s, c) = th.sin_cos();
+            let (dx, dy) = (q.x - x, q.y - y);
+            let (bx, by) = (c * dx + s * dy, -s * dx + c * dy);
+            Vector2::new((bx.abs() - p.half_length_m).max(0.0), (by.abs() - p.half_width_m).max(0.0)).norm()
+                - pp.radius_m
+        };
+        let people = self.people.people_around(input.stamp, &input.pose, pp);
         let mut scale: f64 = 1.0;
-        for q in self.people.people_around(input.stamp, &input.pose, pp) {
-            let gap = Vector2::new((q.x.abs() - p.half_length_m).max(0.0), (q.y.abs() - p.half_width_m).max(0.0))
-                .norm()
-                - pp.radius_m;
-            let cap = pp.slow_mps + pp.slow_per_m * (gap - pp.slow_gap_m).max(0.0);
+        for q in &people {
+            let cap = pp.slow_mps + pp.slow_per_m * (gap(q, 0.0, 0.0, 0.0) - pp.slow_gap_m).max(0.0);
             let toward = (v > 0.0 && q.x > -p.half_length_m) || (v < 0.0 && q.x < p.half_length_m);
             if toward && v.abs() > cap {
                 scale = scale.min(cap / v.abs());
@@ -55,10 +78,22 @@ impl RobotState {
                 scale = scale.min(cap / (w.abs() * corner));
             }
         }
-        if scale < 1.0 {
+        (near.v, near.w) = (v * scale, w * scale);
+        near.touches = people.iter().any(|q| {
+            let soonest = (0..=SAMPLES)
+                .map(|k| {
+                    let (x, y, th) = arc_pose(near.v, near.w, TOUCH_HORIZON_S * k as f64 / SAMPLES as f64);
+                    gap(q, x, y, th)
+                })
+                .fold(f64::INFINITY, f64::min);
+            soonest < pp.touch_m && soonest < gap(q, 0.0, 0.0, 0.0) - 0.005
+        });
+        if near.touches {
+            tracing::debug!(stamp = input.stamp, v, w, "stopped: the command would touch a person");
+        } else if scale < 1.0 {
             tracing::debug!(stamp = input.stamp, v, w, scale, "slowed near a person");
         }
-        (v * scale, w * scale)
+        near
     }
 
     /// Whether someone is within `PeopleParams::yield_m` of the robot's
@@ -120,6 +155,7 @@ mod tests {
 
     use super::super::test_support::turn_in_place_to;
     use super::super::{FollowParams, RobotState};
+    use super::NearPeople;
     use crate::cloud::ObstacleCloud;
 
     /// A robot at the origin that saw a person standing at `at` (`odom`)
@@ -138,21 +174,38 @@ mod tests {
         let empty = ObstacleCloud::default();
         let input = turn_in_place_to(1.0, &empty);
         let corner = p.half_length_m.hypot(p.half_width_m);
-        // Beside the robot (0.6 m to its right): the turn swings a corner
-        // at most `slow_mps`, the forward command is slowed as much.
-        let beside = saw(Vector2::new(0.2, -0.6), 0.0, &p);
-        let (v, w) = beside.slow_near_people(&input, 0.0, 1.5, &p);
-        assert_eq!(v, 0.0);
-        assert!((w * corner - p.people.slow_mps).abs() < 1e-9, "corner speed {}", w * corner);
-        let (v, w) = beside.slow_near_people(&input, 1.0, 0.5, &p);
-        assert!(v <= p.people.slow_mps + 1e-9 && (w / v - 0.5).abs() < 1e-9, "the arc kept: {v} {w}");
+        // A metre to the right: the turn swings a corner at most
+        // `slow_mps`, the forward command is slowed as much, its arc kept.
+        let beside = saw(Vector2::new(0.0, -1.0), 0.0, &p);
+        let near = beside.slow_near_people(&input, 0.0, 1.5, &p);
+        assert_eq!(near.v, 0.0);
+        assert!((near.w * corner - p.people.slow_mps).abs() < 1e-9, "corner speed {}", near.w * corner);
+        assert!(!near.touches);
+        let near = beside.slow_near_people(&input, 1.0, 0.5, &p);
+        assert!(near.v <= p.people.slow_mps + 1e-9 && (near.w / near.v - 0.5).abs() < 1e-9, "the arc kept: {near:?}");
         // Behind the robot, driving away: no slower; backing towards them: slow.
         let behind = saw(Vector2::new(-1.2, 0.0), 0.0, &p);
-        assert_eq!(behind.slow_near_people(&input, 1.0, 0.0, &p), (1.0, 0.0));
-        assert!(behind.slow_near_people(&input, -0.5, 0.0, &p).0 > -0.5);
-        // Three metres off: no slower.
+        assert_eq!(behind.slow_near_people(&input, 1.0, 0.0, &p), NearPeople { v: 1.0, w: 0.0, touches: false });
+        assert!(behind.slow_near_people(&input, -0.5, 0.0, &p).v > -0.5);
+        // Three and a half metres off: no slower.
         let far = saw(Vector2::new(3.5, 0.0), 0.0, &p);
-        assert_eq!(far.slow_near_people(&input, 1.0, 0.3, &p), (1.0, 0.3));
+        assert_eq!(far.slow_near_people(&input, 1.0, 0.3, &p), NearPeople { v: 1.0, w: 0.3, touches: false });
+    }
+
+    #[test]
+    fn a_command_that_would_touch_a_person_is_stopped_one_that_draws_away_is_not() {
+        let p = FollowParams::default();
+        let empty = ObstacleCloud::default();
+        let input = turn_in_place_to(1.0, &empty);
+        // A person who stepped against the robot's front (crossing hall):
+        // creeping on into them touches; backing away does not.
+        let against = saw(Vector2::new(0.76, 0.05), 0.0, &p);
+        assert!(against.slow_near_people(&input, 0.15, -0.3, &p).touches);
+        assert!(!against.slow_near_people(&input, -0.25, 0.0, &p).touches);
+        // 0.9 m ahead of the front: slowed, not stopped.
+        let ahead = saw(Vector2::new(1.7, 0.0), 0.0, &p);
+        let near = ahead.slow_near_people(&input, 1.0, 0.0, &p);
+        assert!(!near.touches && near.v < 1.0 && near.v >= p.people.slow_mps, "{near:?}");
     }
 
     #[test]
@@ -172,14 +225,14 @@ mod tests {
             i
         };
         assert!(state.people.people_at(3.0, &input(3.0).pose, &p.people).is_empty());
-        assert!(state.slow_near_people(&input(3.0), 0.0, 1.5, &p).1 < 1.0);
-        assert_eq!(state.slow_near_people(&input(p.people.slow_recall_s + 0.1), 0.0, 1.5, &p).1, 1.5);
+        assert!(state.slow_near_people(&input(3.0), 0.0, 1.5, &p).w < 1.0);
+        assert_eq!(state.slow_near_people(&input(p.people.slow_recall_s + 0.1), 0.0, 1.5, &p).w, 1.5);
         // Looked at again (after the track went) and nobody there: the
         // recalled place is forgotten at once.
         let mut looked = saw(at, 0.0, &p);
         looked.people.update(2.5, &[], &p.people);
-        assert!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).1 < 1.0);
+        assert!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).w < 1.0);
         looked.people.forget_looked_at(2.5, |q| (q - at).norm() < 0.1);
-        assert_eq!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).1, 1.5);
+        assert_eq!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).w, 1.5);
     }
 }
