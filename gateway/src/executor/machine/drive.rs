@@ -33,6 +33,19 @@ fn capitalise(s: &str) -> String {
 }
 
 impl Mission {
+    /// After a pause (an emergency stop): the step's progress and stuck
+    /// clocks start again at `stamp`, so time held still does not count
+    /// as time without progress.
+    pub(super) fn restart_clocks(&mut self, stamp: f64) {
+        if let Some(step) = self.step.as_mut() {
+            step.stuck_since = None;
+            step.waiting_since = None;
+            if let Some(best) = &mut step.progress {
+                best.1 = stamp;
+            }
+        }
+    }
+
     /// Applies a local-planner answer for a drive toward the step's goal.
     pub(super) fn drive_outcome(&mut self, p: &ExecutorParams, goal: &Goal, plan: DriveAnswer) -> Next {
         let (stamp, pose) = (self.frame.stamp, self.frame.pose);

@@ -233,3 +233,29 @@ fn a_wait_that_ends_restarts_the_stuck_clock() {
         t += 0.5;
     }
 }
+
+#[test]
+fn an_engaged_emergency_stop_pauses_the_mission_and_its_release_resumes_it() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    // Moving, then held by the e-stop for far longer than every timeout:
+    // no stage is asked, the command is zero and idle, nothing is asked.
+    let (cmd, _) = cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.5, 6.0)));
+    assert_eq!(cmd.twist.linear, 0.5);
+    let mut t = 0.5;
+    while t < 3.0 * p.progress_timeout_s.max(p.stuck_timeout_s) {
+        let frame = Frame { estop: true, ..at(t, 0.5, 0.0, 0.0) };
+        let (cmd, asked) = cycle(&mut m, &p, frame, blind(|_| unreachable!("no stage while paused")));
+        assert!(asked.is_empty());
+        assert_eq!(cmd, Command { twist: Twist::ZERO, active: false, finished: None });
+        t += 0.5;
+    }
+    // Released: the step goes on where it was, its clocks started afresh
+    // (no closer than at t = 0, which without the restart is long past
+    // the progress timeout).
+    let (cmd, asked) = cycle(&mut m, &p, at(t, 0.5, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.5, 6.0)));
+    assert!(matches!(asked[..], [Request::Perceive { .. }, Request::Drive { .. }]), "{asked:?}");
+    assert_eq!((cmd.twist.linear, cmd.active), (0.5, true));
+    assert!(!m.is_awaiting());
+    assert!(matches!(events(&mut m)[..], [Event::StepStarted { .. }]), "no step failed, nothing asked");
+}

@@ -284,6 +284,8 @@ pub(crate) struct Mission {
     /// The question waiting for an answer, and the failure that caused it.
     awaiting: Option<(Question, String)>,
     outage: Option<Outage>,
+    /// Since when an emergency stop has held the mission (`Frame::estop`).
+    paused_since: Option<f64>,
     /// A step has been started (the local planner holds this mission's state).
     started: bool,
     /// The frame being handled and where its work stands.
@@ -319,6 +321,7 @@ impl Mission {
                 (q, reason)
             }),
             outage: None,
+            paused_since: None,
             started: false,
             frame: Frame::default(),
             obstacles: Obstacles::default(),
@@ -393,6 +396,24 @@ impl Mission {
         self.metrics.observe(frame.stamp, &frame.pose, frame.truth.as_ref());
         self.start_pose.get_or_insert(frame.pose);
         self.frame = frame;
+        if self.frame.estop {
+            // The edge agent holds the robot at zero; nothing runs out
+            // while the mission waits for the e-stop's release.
+            if self.paused_since.is_none() {
+                tracing::info!(mission = %self.mission_id, stamp = self.frame.stamp, "an emergency stop is engaged: the mission pauses");
+                self.paused_since = Some(self.frame.stamp);
+            }
+            return Next::Done(Command { twist: Twist::ZERO, active: false, finished: None });
+        }
+        if let Some(since) = self.paused_since.take() {
+            let stamp = self.frame.stamp;
+            tracing::info!(mission = %self.mission_id, stamp, paused_s = stamp - since, "the emergency stop is released: the mission resumes");
+            self.restart_clocks(stamp);
+            if let Some(o) = &mut self.outage {
+                o.since = stamp;
+                o.retry_at = stamp;
+            }
+        }
         if let Some(o) = &self.outage {
             let stamp = self.frame.stamp;
             if stamp - o.since >= STAGE_OUTAGE_S {
