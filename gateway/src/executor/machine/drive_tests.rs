@@ -226,8 +226,11 @@ fn a_wait_that_ends_restarts_the_stuck_clock() {
     // Blocked and waiting in turns, each spell shorter than its own bound:
     // never asked, since each wait breaks the blocked spell.
     while t < 3.0 * p.stuck_timeout_s {
-        let status =
-            if (t / (p.stuck_timeout_s - 2.0)) as u32 % 2 == 0 { DriveStatus::Blocked } else { DriveStatus::Waiting };
+        let status = if ((t / (p.stuck_timeout_s - 2.0)) as u32).is_multiple_of(2) {
+            DriveStatus::Blocked
+        } else {
+            DriveStatus::Waiting
+        };
         cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(move |_| driven(status, 0.0, 6.0)));
         assert!(!m.is_awaiting(), "asked at {t}");
         t += 0.5;
