@@ -467,11 +467,12 @@ impl RobotActor {
             i.last_stamp = stamp;
             i.last_odometry = f.odom;
         });
+        let estop = self.info.lock().is_ok_and(|i| i.estop);
         let fleet = self.fleet.clone();
         let ctx = fleet.ctx();
         let (twist, active, span, mission_id, seen, mission) = match self.run.as_mut() {
             Some(run) => {
-                let tick = run.on_frame(&ctx, &frame).await;
+                let tick = run.on_frame(&ctx, &frame, estop).await;
                 let id = run.mission_id.clone();
                 let mission = fleet.viz.is_on().then(|| MissionView {
                     mission_id: id.clone(),

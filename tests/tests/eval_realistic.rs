@@ -58,8 +58,14 @@ use vlnav_eval::metrics::Mode;
 /// than a scan turn off the route's course turns onto the course first
 /// (docs/perception.md): it sees the motorcycle from another heading, and
 /// the views its place is fused from moved.
-const PINNED: &str = "crossing 0 succeeded true true +0.03 0 0\n\
-crossing 1 succeeded true true +0.15 0 0\n\
+/// Crossing trial 0 stops 1 cm nearer, and crossing trial 1 (the 12 m
+/// MOVE) now asks "my way is blocked" 7.1 m short, since the robot slows
+/// near people, waits for a person in its way and gives way to them
+/// (docs/design.md §4, "People in the way"): it meets the walkers at other
+/// places. Over the whole realistic crossing hall (50 trials) success went
+/// 62 → 64 %, and on the generated test set 65.9 → 71.7 %.
+const PINNED: &str = "crossing 0 succeeded true true +0.02 0 0\n\
+crossing 1 clarification false false +7.12 0 0\n\
 garage 0 succeeded true true +0.02 0 0\n\
 garage 1 succeeded true true +0.07 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\

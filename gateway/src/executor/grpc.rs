@@ -180,6 +180,7 @@ impl Stages<'_> {
                     Ok(pb::LocalPlanStatus::Reached) => DriveStatus::Reached,
                     Ok(pb::LocalPlanStatus::Blocked) => DriveStatus::Blocked,
                     Ok(pb::LocalPlanStatus::NoProgress) => DriveStatus::NoProgress,
+                    Ok(pb::LocalPlanStatus::Waiting) => DriveStatus::Waiting,
                     _ => DriveStatus::Unspecified,
                 };
                 let answer = DriveAnswer {
@@ -278,9 +279,10 @@ fn detection_to_proto(b: &Detection) -> pb::BoundingBox {
 }
 
 /// What the state machine sees of a checked sensor frame.
-pub(crate) fn frame_from_proto(checked: &CheckedFrame) -> Frame {
+pub(crate) fn frame_from_proto(checked: &CheckedFrame, estop: bool) -> Frame {
     let f = checked.frame();
     Frame {
+        estop,
         stamp: f.stamp,
         pose: f.odom.as_ref().map(pose_from_proto).unwrap_or_default(),
         camera: Some(*checked.camera()),
@@ -491,7 +493,7 @@ mod tests {
     fn the_machine_reads_the_checked_frame_with_the_camera_its_check_read() {
         let f = crate::frames::tests::frame(8, 6);
         let checked = CheckedFrame::check(pb::SensorFrame { frame: Some(f.clone()), truth: None }, None).unwrap();
-        let seen = frame_from_proto(&checked);
+        let seen = frame_from_proto(&checked, false);
         assert_eq!(seen.stamp, f.stamp);
         let camera = convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET);
         assert_eq!(seen.camera, Some(camera.unwrap()));

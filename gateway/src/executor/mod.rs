@@ -233,8 +233,9 @@ impl MissionRun {
         self.record(ctx);
     }
 
-    /// One sensor frame in, one velocity command out.
-    pub(crate) async fn on_frame(&mut self, ctx: &Ctx<'_>, checked: &CheckedFrame) -> Tick {
+    /// One sensor frame in, one velocity command out; `estop`: an
+    /// emergency stop is engaged (the robot's last status).
+    pub(crate) async fn on_frame(&mut self, ctx: &Ctx<'_>, checked: &CheckedFrame, estop: bool) -> Tick {
         let frame = checked.frame();
         if self.machine.is_awaiting() {
             return Tick::idle();
@@ -248,7 +249,7 @@ impl MissionRun {
         let mut seen = Seen::default();
         // The person boxes of the frame's last perception, shown when no FIND asked for boxes.
         let mut people = Vec::new();
-        let frame_in = grpc::frame_from_proto(checked);
+        let frame_in = grpc::frame_from_proto(checked, estop);
         let mut next = guarded(&mut self.machine, |m| m.on_frame(ctx.params, frame_in));
         let command = loop {
             let request = match next {

@@ -23,6 +23,10 @@ pub(crate) struct Frame {
     pub(crate) camera: Option<Camera>,
     /// Simulation ground truth, for the mission's metrics.
     pub(crate) truth: Option<Truth>,
+    /// An emergency stop is engaged — the robot's own or its edge agent's
+    /// (their last `EdgeStatus`): the edge agent holds the robot at zero,
+    /// and the mission pauses.
+    pub(crate) estop: bool,
 }
 
 /// Simulation ground truth attached to a frame.
@@ -131,6 +135,9 @@ pub(crate) enum DriveStatus {
     Reached,
     Blocked,
     NoProgress,
+    /// Stopped for a person in the way: no lack of progress, waited for
+    /// within a bound (`drive.rs`).
+    Waiting,
 }
 
 /// What the current frame's perception found that its local-planner step

@@ -116,6 +116,7 @@ fn reply_to_proto(r: StepReply) -> pb::PlanStepResponse {
         StepStatus::Reached => pb::LocalPlanStatus::Reached,
         StepStatus::Blocked => pb::LocalPlanStatus::Blocked,
         StepStatus::NoProgress => pb::LocalPlanStatus::NoProgress,
+        StepStatus::Waiting => pb::LocalPlanStatus::Waiting,
     };
     let (path_id, rotation_index, cost) = match &o.selection {
         Some(s) => (s.path as i32, s.rotation as i32, s.cost),

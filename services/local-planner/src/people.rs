@@ -76,6 +76,35 @@ pub struct PeopleParams {
     /// them swings its corners faster than the tracker catches up
     /// (services/local-planner/README.md, "People").
     pub near_walker_mps: f64,
+    /// A robot blocked (or making no progress) while someone it tracks is
+    /// expected within this distance of its centre waits for them rather
+    /// than counting as stuck, m: a person one step (0.8 m) beyond the
+    /// robot's circumscribed radius (0.6 m), with their own radius and the
+    /// straying the reach test allows, and as far again ahead, where a
+    /// person in a doorway or a corridor takes every path (≈ 2.5 m).
+    pub yield_m: f64,
+    /// How long where a person was seen is recalled for `yield_m`, s: a
+    /// person who stepped out of the camera's view beside the robot (the
+    /// tracker drops them after `keep_s`) is most often still there,
+    /// waiting for the robot as it waits for them.
+    pub recall_s: f64,
+    /// Near people the robot slows (`control/walkers.rs`): within
+    /// `slow_gap_m` of clearance between its body and a person (their
+    /// radius taken off) it drives and swings its corners no faster than
+    /// `slow_mps`, and `slow_per_m` m/s faster per metre of clearance
+    /// beyond. 0.3 m/s stops within one frame and 5 cm (1 m/s²), so a
+    /// person who steps towards the robot meets a robot already standing.
+    pub slow_gap_m: f64,
+    pub slow_mps: f64,
+    pub slow_per_m: f64,
+    /// How long a person's place counts for slowing once out of view, s:
+    /// a person beside the robot is out of the camera's ±43°; at a walking
+    /// pace they are elsewhere after a few seconds. A place the camera
+    /// looks at again and finds empty is forgotten at once.
+    pub slow_recall_s: f64,
+    /// No command may bring the body nearer a person than this clearance
+    /// (and nearer than it is), m: the robot stops for them (WAITING).
+    pub touch_m: f64,
 }
 
 impl Default for PeopleParams {
@@ -95,6 +124,13 @@ impl Default for PeopleParams {
             spread_max_m: 0.3,
             near_walker_m: 3.6,
             near_walker_mps: 0.6,
+            yield_m: 2.5,
+            recall_s: 10.0,
+            slow_gap_m: 0.5,
+            slow_mps: 0.3,
+            slow_per_m: 0.7,
+            slow_recall_s: 4.0,
+            touch_m: 0.2,
         }
     }
 }
@@ -140,7 +176,13 @@ impl Track {
 #[derive(Clone, Debug, Default)]
 pub struct Tracker {
     tracks: Vec<Track>,
+    /// Where confirmed people were last seen, `odom`, with the stamp, for
+    /// `PeopleParams::recall_s`: one per `RECALL_CELL_M` cell, the newest.
+    recalled: Vec<(f64, Vector2<f64>)>,
 }
+
+/// Sightings recalled closer together than this are one, m.
+const RECALL_CELL_M: f64 = 0.3;
 
 impl Tracker {
     /// Adds this frame's people (`odom`; `None` where a box held no depth)
@@ -188,7 +230,39 @@ impl Tracker {
                 t.walked = Some(stamp);
             }
         }
+        self.recalled.retain(|(s, _)| stamp - *s <= p.recall_s && *s <= stamp);
+        for t in self.tracks.iter().filter(|t| t.confirmed(p) && t.last().0 == stamp) {
+            let at = t.last().1;
+            self.recalled.retain(|(_, q)| (q - at).norm() >= RECALL_CELL_M);
+            self.recalled.push((stamp, at));
+        }
         walking
+    }
+
+    /// Whether a confirmed person was seen within `recall_s` before `stamp`
+    /// within `range` of where the robot (`pose`) stands now, or is
+    /// expected there (`people_at`).
+    pub fn person_near(&self, stamp: f64, pose: &Pose2, range: f64, p: &PeopleParams) -> bool {
+        let recalled =
+            self.recalled.iter().any(|(s, q)| stamp - s <= p.recall_s && (q - pose.position()).norm() < range);
+        recalled || self.people_at(stamp, pose, p).iter().any(|q| q.norm() < range)
+    }
+
+    /// Forgets the recalled places not sighted at `stamp` for which
+    /// `looked_empty` holds (`odom`): the camera looked there this frame and
+    /// no person stands there any more.
+    pub fn forget_looked_at(&mut self, stamp: f64, looked_empty: impl Fn(&Vector2<f64>) -> bool) {
+        self.recalled.retain(|(s, q)| *s == stamp || !looked_empty(q));
+    }
+
+    /// Where people are or may be at `stamp`, in `pose`'s frame: everyone
+    /// tracked (`people_at`) and the places seen within `slow_recall_s`.
+    pub fn people_around(&self, stamp: f64, pose: &Pose2, p: &PeopleParams) -> Vec<Vector2<f64>> {
+        let mut all = self.people_at(stamp, pose, p);
+        all.extend(
+            self.recalled.iter().filter(|(s, _)| stamp - s <= p.slow_recall_s).map(|(_, q)| pose.inverse_transform(q)),
+        );
+        all
     }
 
     /// Every walker's expected place `ahead` s after `stamp`, carried on
@@ -231,10 +305,14 @@ impl Tracker {
                 *at = f(at);
             }
         }
+        for (_, at) in &mut self.recalled {
+            *at = f(at);
+        }
     }
 
     pub fn clear(&mut self) {
         self.tracks.clear();
+        self.recalled.clear();
     }
 
     pub fn len(&self) -> usize {
@@ -317,5 +395,43 @@ mod tests {
         }
         assert_eq!(t.len(), 2);
         assert_eq!(last, vec![true, true]);
+    }
+
+    #[test]
+    fn a_person_who_stepped_out_of_view_is_recalled_near_for_a_while() {
+        let (pp, pose) = (p(), Pose2::new(0.0, 0.0, 0.0));
+        let mut t = Tracker::default();
+        for k in 0..5 {
+            t.update(0.2 * f64::from(k), &[Some(Vector2::new(1.0, 0.5))], &pp);
+        }
+        assert!(t.person_near(0.8, &pose, pp.yield_m, &pp));
+        // Out of view (no sightings): the track goes after keep_s, the
+        // recalled place stays for recall_s.
+        for k in 5..=50 {
+            t.update(0.2 * f64::from(k), &[], &pp);
+        }
+        assert!(t.people_at(10.0, &pose, &pp).is_empty());
+        assert!(t.person_near(10.0, &pose, pp.yield_m, &pp));
+        assert!(!t.person_near(10.0, &Pose2::new(-3.0, 0.0, 0.0), pp.yield_m, &pp), "farther than yield_m");
+        t.update(11.0, &[], &pp);
+        assert!(!t.person_near(11.0, &pose, pp.yield_m, &pp), "forgotten after recall_s");
+    }
+
+    #[test]
+    fn a_recalled_place_looked_at_and_empty_is_forgotten_one_sighted_now_is_kept() {
+        let (pp, pose) = (p(), Pose2::new(0.0, 0.0, 0.0));
+        let mut t = Tracker::default();
+        for k in 0..5 {
+            t.update(0.2 * f64::from(k), &[Some(Vector2::new(1.0, 0.5))], &pp);
+        }
+        // Seen this frame: kept whatever the check says.
+        t.forget_looked_at(0.8, |_| true);
+        assert!(t.person_near(0.8, &pose, pp.yield_m, &pp));
+        t.update(1.0, &[], &pp);
+        // Not looked at: kept.
+        t.forget_looked_at(1.0, |_| false);
+        assert_eq!(t.people_around(1.0, &pose, &pp).len(), 2, "the track and its recalled place");
+        t.forget_looked_at(1.0, |_| true);
+        assert_eq!(t.people_around(1.0, &pose, &pp).len(), 1, "the track only");
     }
 }

@@ -603,3 +603,44 @@ fn check_gone_round(run: &Run) {
     assert!(closest > HALF_WIDTH, "robot centre came within {closest:.3} m of the zone");
     assert!(!run.outputs.iter().any(|o| o.status == StepStatus::Blocked), "reported BLOCKED on the way");
 }
+
+/// The robot in a passage 1.2 m wide that opens 1.3 m ahead, the goal 4 m
+/// beyond; in its mouth either a person (boxed by the detector) or a post of
+/// the same size. Returns the status of each frame.
+fn doorway_taken(by_person: bool) -> Vec<StepStatus> {
+    let params = FollowParams::default();
+    let mut builder = CloudBuilder::new(CloudParams::default());
+    let mut world = World::default();
+    world.add_box(-1.0, 0.6, 1.3, 0.7, 1.0);
+    world.add_box(-1.0, -0.7, 1.3, -0.6, 1.0);
+    // A column 0.3 m across, 1.2 m high, in its mouth.
+    world.add_box(1.0, -0.15, 1.3, 0.15, 1.2);
+    let goal = goal_at(5.0, 0.0, 0.3);
+    let mut state = RobotState::default();
+    (0..15)
+        .map(|k| {
+            let stamp = 1000.0 + f64::from(k) * DT;
+            let pose = Pose2::new(0.0, 0.0, 0.0);
+            let mut cloud = world.sense(&pose, &mut builder);
+            if by_person {
+                // The detector boxes the column as a person.
+                for c in &mut cloud.cells {
+                    c.person = u8::from(c.x > 0.9 && c.x < 1.4 && c.y.abs() < 0.2);
+                }
+                cloud.people = vec![Some(nalgebra::Vector2::new(1.15, 0.0))];
+            }
+            let input = StepInput { stamp, pose, goal, cloud: &cloud, max_speed: 0.0, view: VIEW };
+            state.step(planner(), &params, input).status
+        })
+        .collect()
+}
+
+#[test]
+fn a_person_in_the_doorway_is_waited_for_and_a_post_there_blocks() {
+    let person = doorway_taken(true);
+    let post = doorway_taken(false);
+    // Once the tracker is sure of the person (three sightings), the robot
+    // waits for them; a post in the same place is furniture: BLOCKED.
+    assert!(person[3..].iter().all(|s| *s == StepStatus::Waiting), "{person:?}");
+    assert!(post.iter().all(|s| *s == StepStatus::Blocked), "{post:?}");
+}

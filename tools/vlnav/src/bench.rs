@@ -723,6 +723,12 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         let robots: RobotsSummary = serde_json::from_str(line.trim())
             .with_context(|| format!("the robots' process reported {line:?} (its errors are above)"))?;
         stop.cancel();
+        let started = counts.started.load(Ordering::Relaxed) - started0;
+        measured(
+            &robots,
+            started,
+            &format!("{n} robots at {}x{} and {} fps", args.width, args.height, args.frame_rate),
+        )?;
         Ok(FleetReport {
             robots: n,
             seconds,
@@ -764,6 +770,21 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
     result
 }
 
+/// A run that answered no control cycle while a mission drove a robot has
+/// no figure to report: a p50 of 0 ms would read as perfect.
+fn measured(robots: &RobotsSummary, missions_started: u64, load: &str) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        robots.cycles > 0,
+        "no control cycle was answered while a mission drove a robot in {:.0} s ({} frames sent, {} never \
+         answered, {missions_started} missions started): the stack cannot keep up with {load}, or no mission \
+         started in time (try a longer --warmup or fewer robots)",
+        robots.seconds,
+        robots.frames_sent,
+        robots.unanswered + robots.dropped_at_edge,
+    );
+    Ok(())
+}
+
 /// `vlnav bench fleet`: one run, or one per count of `--sweep`.
 pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::Result<Vec<FleetReport>> {
     let counts = if args.sweep.is_empty() { vec![args.robots] } else { args.sweep.clone() };
@@ -793,6 +814,8 @@ pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::R
         out.flush()?;
         reports.push(report);
     }
+    let failed = reports.iter().filter(|r| r.error.is_some()).count();
+    anyhow::ensure!(failed == 0, "{failed} of {} runs could not be measured (see above)", reports.len());
     Ok(reports)
 }
 
@@ -938,6 +961,15 @@ fn plot_svg(series: &[Vec<FleetReport>], goal_ms: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_run_that_answered_no_cycle_is_an_error_not_a_zero() {
+        let none = RobotsSummary { seconds: 20.0, frames_sent: 2000, unanswered: 1990, ..Default::default() };
+        let e = measured(&none, 0, "100 robots at 640x480 and 10 fps").unwrap_err().to_string();
+        assert!(e.contains("no control cycle") && e.contains("1990 never answered") && e.contains("100 robots"), "{e}");
+        let some = RobotsSummary { cycles: 1, ..none };
+        assert!(measured(&some, 1, "1 robot").is_ok());
+    }
 
     fn at(base: Instant, ms: u64) -> Instant {
         base + Duration::from_millis(ms)

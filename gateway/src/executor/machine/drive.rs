@@ -15,6 +15,11 @@ const PROGRESS_RAD: f64 = 0.05;
 /// A drive that stops converging within this distance beyond its goal's
 /// tolerance has arrived: it settles instead of asking, m.
 const SETTLE_M: f64 = 0.25;
+/// How long the robot waits for a person in its way (the local planner's
+/// WAITING, without a break) before it asks, s of sensor time: people step
+/// aside or walk on within seconds; one who stays is asked about
+/// (docs/design.md §4, "People in the way").
+const PERSON_WAIT_S: f64 = 30.0;
 
 /// Where a MOVE starts from: the robot's position, facing the course of the
 /// MOVE or FIND reached just before (if any), else its own heading.
@@ -28,6 +33,19 @@ fn capitalise(s: &str) -> String {
 }
 
 impl Mission {
+    /// After a pause (an emergency stop): the step's progress and stuck
+    /// clocks start again at `stamp`, so time held still does not count
+    /// as time without progress.
+    pub(super) fn restart_clocks(&mut self, stamp: f64) {
+        if let Some(step) = self.step.as_mut() {
+            step.stuck_since = None;
+            step.waiting_since = None;
+            if let Some(best) = &mut step.progress {
+                best.1 = stamp;
+            }
+        }
+    }
+
     /// Applies a local-planner answer for a drive toward the step's goal.
     pub(super) fn drive_outcome(&mut self, p: &ExecutorParams, goal: &Goal, plan: DriveAnswer) -> Next {
         let (stamp, pose) = (self.frame.stamp, self.frame.pose);
@@ -50,6 +68,28 @@ impl Mission {
             (plan.distance_to_goal, PROGRESS_M)
         };
         let Some(step) = self.step.as_mut() else { return self.hold() };
+        if plan.status == DriveStatus::Waiting {
+            // Waiting for a person is no lack of progress: both clocks
+            // restart, and the wait has a bound of its own.
+            step.stuck_since = None;
+            if let Some(best) = &mut step.progress {
+                best.1 = stamp;
+            }
+            let waiting_since = *step.waiting_since.get_or_insert(stamp);
+            if stamp - waiting_since < PERSON_WAIT_S {
+                return self.done(plan.cmd, None);
+            }
+            self.ask(
+                format!(
+                    "step {}: a person is in my way ({:.1} m from the goal)",
+                    self.index + 1,
+                    plan.distance_to_goal
+                ),
+                "A person is in my way — should I wait, try another way, skip this step, or stop?".to_string(),
+            );
+            return self.hold();
+        }
+        step.waiting_since = None;
         let since = match &mut step.progress {
             Some(best) => {
                 if measure < best.0 - step_m {

@@ -4,6 +4,7 @@ use std::f64::consts::FRAC_PI_6;
 
 use super::super::test_support::*;
 use super::super::*;
+use super::PERSON_WAIT_S;
 
 #[test]
 fn a_move_starts_perceives_drives_and_completes_when_reached() {
@@ -186,4 +187,78 @@ fn a_blocked_drive_asks_after_the_stuck_timeout() {
         }
         other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn waiting_for_a_person_is_no_lack_of_progress_and_is_asked_about_after_its_own_bound() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    let mut t = 0.0;
+    // Blocked for just under the stuck timeout, then a person in the way for
+    // longer than both the stuck and the progress timeouts together.
+    while t < p.stuck_timeout_s - 1.0 {
+        cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Blocked, 0.0, 6.0)));
+        t += 0.5;
+    }
+    let waiting_from = t;
+    while !m.is_awaiting() {
+        assert!(t <= waiting_from + PERSON_WAIT_S + 0.5, "still not asking at {t}");
+        cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Waiting, 0.0, 6.0)));
+        t += 0.5;
+    }
+    assert!(t - waiting_from > PERSON_WAIT_S, "asked after {:.1} s of waiting", t - waiting_from);
+    // The progress clock (no closer since t = 0) would have asked by now.
+    assert!(t > p.progress_timeout_s);
+    match &events(&mut m)[..] {
+        [Event::StepStarted { .. }, Event::StepFailed { reason, .. }, Event::ClarificationNeeded { question, .. }] => {
+            assert_eq!(reason, "step 1: a person is in my way (6.0 m from the goal)");
+            assert!(question.question.starts_with("A person is in my way"));
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn a_wait_that_ends_restarts_the_stuck_clock() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    let mut t = 0.0;
+    // Blocked and waiting in turns, each spell shorter than its own bound:
+    // never asked, since each wait breaks the blocked spell.
+    while t < 3.0 * p.stuck_timeout_s {
+        let status = if ((t / (p.stuck_timeout_s - 2.0)) as u32).is_multiple_of(2) {
+            DriveStatus::Blocked
+        } else {
+            DriveStatus::Waiting
+        };
+        cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(move |_| driven(status, 0.0, 6.0)));
+        assert!(!m.is_awaiting(), "asked at {t}");
+        t += 0.5;
+    }
+}
+
+#[test]
+fn an_engaged_emergency_stop_pauses_the_mission_and_its_release_resumes_it() {
+    let p = ExecutorParams::default();
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    // Moving, then held by the e-stop for far longer than every timeout:
+    // no stage is asked, the command is zero and idle, nothing is asked.
+    let (cmd, _) = cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.5, 6.0)));
+    assert_eq!(cmd.twist.linear, 0.5);
+    let mut t = 0.5;
+    while t < 3.0 * p.progress_timeout_s.max(p.stuck_timeout_s) {
+        let frame = Frame { estop: true, ..at(t, 0.5, 0.0, 0.0) };
+        let (cmd, asked) = cycle(&mut m, &p, frame, blind(|_| unreachable!("no stage while paused")));
+        assert!(asked.is_empty());
+        assert_eq!(cmd, Command { twist: Twist::ZERO, active: false, finished: None });
+        t += 0.5;
+    }
+    // Released: the step goes on where it was, its clocks started afresh
+    // (no closer than at t = 0, which without the restart is long past
+    // the progress timeout).
+    let (cmd, asked) = cycle(&mut m, &p, at(t, 0.5, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 0.5, 6.0)));
+    assert!(matches!(asked[..], [Request::Perceive { .. }, Request::Drive { .. }]), "{asked:?}");
+    assert_eq!((cmd.twist.linear, cmd.active), (0.5, true));
+    assert!(!m.is_awaiting());
+    assert!(matches!(events(&mut m)[..], [Event::StepStarted { .. }]), "no step failed, nothing asked");
 }

@@ -217,6 +217,8 @@ struct Active {
     progress: Option<(f64, f64)>,
     /// Since when the local planner has said Blocked or NoProgress without a break.
     stuck_since: Option<f64>,
+    /// Since when the local planner has said Waiting (for a person) without a break.
+    waiting_since: Option<f64>,
     run: StepRun,
 }
 
@@ -282,6 +284,8 @@ pub(crate) struct Mission {
     /// The question waiting for an answer, and the failure that caused it.
     awaiting: Option<(Question, String)>,
     outage: Option<Outage>,
+    /// Since when an emergency stop has held the mission (`Frame::estop`).
+    paused_since: Option<f64>,
     /// A step has been started (the local planner holds this mission's state).
     started: bool,
     /// The frame being handled and where its work stands.
@@ -317,6 +321,7 @@ impl Mission {
                 (q, reason)
             }),
             outage: None,
+            paused_since: None,
             started: false,
             frame: Frame::default(),
             obstacles: Obstacles::default(),
@@ -391,6 +396,24 @@ impl Mission {
         self.metrics.observe(frame.stamp, &frame.pose, frame.truth.as_ref());
         self.start_pose.get_or_insert(frame.pose);
         self.frame = frame;
+        if self.frame.estop {
+            // The edge agent holds the robot at zero; nothing runs out
+            // while the mission waits for the e-stop's release.
+            if self.paused_since.is_none() {
+                tracing::info!(mission = %self.mission_id, stamp = self.frame.stamp, "an emergency stop is engaged: the mission pauses");
+                self.paused_since = Some(self.frame.stamp);
+            }
+            return Next::Done(Command { twist: Twist::ZERO, active: false, finished: None });
+        }
+        if let Some(since) = self.paused_since.take() {
+            let stamp = self.frame.stamp;
+            tracing::info!(mission = %self.mission_id, stamp, paused_s = stamp - since, "the emergency stop is released: the mission resumes");
+            self.restart_clocks(stamp);
+            if let Some(o) = &mut self.outage {
+                o.since = stamp;
+                o.retry_at = stamp;
+            }
+        }
         if let Some(o) = &self.outage {
             let stamp = self.frame.stamp;
             if stamp - o.since >= STAGE_OUTAGE_S {
@@ -529,7 +552,8 @@ impl Mission {
             tracing::debug!(mission = %self.mission_id, step = index, revisit = ?f.revisit, landmarks = ?self.landmarks, "find starts");
         }
         self.emit(Event::StepStarted { index, step, anchor });
-        self.step = Some(Active { started: self.frame.stamp, progress: None, stuck_since: None, run });
+        self.step =
+            Some(Active { started: self.frame.stamp, progress: None, stuck_since: None, waiting_since: None, run });
         self.continue_step(p)
     }
 

@@ -43,7 +43,7 @@ pub(super) fn camera() -> Camera {
 }
 
 pub(super) fn at(stamp: f64, x: f64, y: f64, theta: f64) -> Frame {
-    Frame { stamp, pose: Pose2::new(x, y, theta), camera: Some(camera()), truth: None }
+    Frame { stamp, pose: Pose2::new(x, y, theta), camera: Some(camera()), truth: None, estop: false }
 }
 
 pub(super) fn mission(plan: Vec<PlanStep>) -> Mission {

@@ -96,6 +96,9 @@ pub(super) fn memory_key(at: &Vector2<f64>) -> (i32, i32) {
     ((at.x / MEMORY_VOXEL).floor() as i32, (at.y / MEMORY_VOXEL).floor() as i32)
 }
 
+/// How tall a person is taken to be for whether the image shows them, m.
+const PERSON_HEIGHT_M: f64 = 1.5;
+
 impl RobotState {
     /// This frame's cells plus remembered cells outside the view; the
     /// memory becomes this frame's cells and the still-valid old ones.
@@ -112,6 +115,15 @@ impl RobotState {
         let people: Vec<Option<Vector2<f64>>> =
             cloud.people.iter().map(|at| at.map(|b| input.pose.transform(&b))).collect();
         self.people.update(input.stamp, &people, &p.people);
+        // A person's recalled place the camera sees again, with depth
+        // reaching a body's width past it and nobody detected there, is
+        // empty now.
+        self.people.forget_looked_at(input.stamp, |q| {
+            let b = input.pose.inverse_transform(q);
+            let beyond = b * (1.0 + 2.0 * p.people.radius_m / b.norm().max(1e-6));
+            cloud.seen.as_ref().is_some_and(|s| s.reaches(&beyond, 0.0))
+                && input.view.sees_top(&b, p.memory_near_m, PERSON_HEIGHT_M)
+        });
         let moving = self.moving_cells(cloud, &ats, input.stamp, p);
         let now: Vec<((i32, i32), Remembered)> = cloud
             .cells

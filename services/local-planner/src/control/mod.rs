@@ -14,7 +14,8 @@
 //! | `follow.rs` | path following: the chosen path's look-ahead point to (v, ω) |
 //! | `guard.rs` | the footprint guard every command passes |
 //! | `creep.rs` | a robot the guard stops creeps on toward the goal's side |
-//! | `walkers.rs` | no command closes on a walking person |
+//! | `walkers.rs` | no command closes on a walking person; a way blocked near a person is WAITING |
+//! | `giveway.rs` | a robot that waited for a person backs away along its own trail |
 //! | `detour.rs` | a way beyond the paths' reach, searched on a rolling grid when stuck |
 //! | `progress.rs` | the no-progress watchdog |
 //! | `params.rs`, `view.rs` | the settings and the camera's view |
@@ -30,6 +31,7 @@
 mod creep;
 mod detour;
 mod follow;
+mod giveway;
 mod goal;
 mod guard;
 mod memory;
@@ -54,6 +56,7 @@ use crate::cloud::ObstacleCloud;
 use crate::people::Tracker;
 use crate::planner::{Planner, Scratch, Selection};
 use detour::{Detour, DetourGrid};
+use giveway::GiveWay;
 use goal::GoalMove;
 use memory::{RecentView, Remembered};
 
@@ -64,6 +67,9 @@ pub enum StepStatus {
     Reached,
     Blocked,
     NoProgress,
+    /// Stopped for a person: BLOCKED or NO_PROGRESS while someone tracked
+    /// is within `PeopleParams::yield_m` (`walkers.rs`).
+    Waiting,
 }
 
 /// What one frame asks of the planner.
@@ -128,6 +134,8 @@ pub struct RobotState {
     grid: DetourGrid,
     /// The detour being driven, if any.
     detour: Option<Detour>,
+    /// The robot's trail and how it gave way to people.
+    give_way: GiveWay,
 }
 
 impl RobotState {
@@ -139,6 +147,28 @@ impl RobotState {
     /// Plans one step. `cloud` replaces the stored cloud.
     pub fn step(&mut self, planner: &Planner, p: &FollowParams, input: StepInput<'_>) -> StepOutput {
         let dt = self.begin_frame(&input, p);
+        let mut out = self.plan_step(planner, p, &input, dt);
+        let near = self.slow_near_people(&input, out.linear, out.angular, p);
+        let blocked = matches!(out.status, StepStatus::Blocked | StepStatus::NoProgress);
+        if near.touches || (blocked && self.person_in_the_way(&input, p)) {
+            // Stopped for a person: WAITING, and after a while giving way.
+            out = self.stop(out, StepStatus::Waiting);
+            let (v, w) = self.yield_to_person(&input, p, dt);
+            let near = self.slow_near_people(&input, v, w, p);
+            (out.linear, out.angular) = if near.touches { (0.0, 0.0) } else { (near.v, near.w) };
+        } else {
+            self.not_waiting(input.stamp);
+            if (near.v, near.w) != (out.linear, out.angular) {
+                (out.linear, out.angular) = (near.v, near.w);
+                self.last_speed = self.last_speed.min(near.v.abs());
+            }
+        }
+        out
+    }
+
+    /// One step's command before it is slowed, or stopped, for people.
+    fn plan_step(&mut self, planner: &Planner, p: &FollowParams, input: &StepInput<'_>, dt: f64) -> StepOutput {
+        let input = input.clone();
         self.cloud = self.merge_memory(input.cloud, &input, p);
         if p.detour {
             self.update_grid(&input, p);
@@ -211,14 +241,22 @@ impl RobotState {
         if time_went_back {
             self.forget_all();
             self.last_path_odom.clear();
+            self.give_way = GiveWay::default();
         } else if let (true, Some(last)) = (jumped, self.last_pose) {
             // Re-anchored odometry: the robot has not moved, its frame has.
             self.reanchor(last, input.pose);
+            self.give_way.reanchor(last, input.pose);
             self.last_path_odom.clear();
         }
+        self.give_way.record(input.pose.position());
         self.last_pose = Some(input.pose);
         self.last_stamp = Some(input.stamp);
         if self.last_goal != Some(input.goal) {
+            // A goal refined by a new estimate of the same target keeps the
+            // wait; another goal starts afresh.
+            if self.last_goal.is_none_or(|g| (g.pose.position() - input.goal.pose.position()).norm() > 1.0) {
+                self.give_way.reset();
+            }
             self.last_goal = Some(input.goal);
             self.detour = None;
             self.progress = None;
