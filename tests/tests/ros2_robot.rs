@@ -187,9 +187,13 @@ fn submit(text: &str) -> SubmitMissionRequest {
 }
 
 async fn inside_the_namespace() {
-    let interfaces: Vec<String> = std::fs::read_dir("/sys/class/net")
-        .expect("/sys/class/net")
-        .filter_map(|e| e.ok().map(|e| e.file_name().to_string_lossy().into_owned()))
+    // /proc/net/dev lists this network namespace's interfaces (/sys/class/net
+    // shows the namespace sysfs was mounted in).
+    let interfaces: Vec<String> = std::fs::read_to_string("/proc/net/dev")
+        .expect("/proc/net/dev")
+        .lines()
+        .skip(2)
+        .filter_map(|l| l.split(':').next().map(|n| n.trim().to_string()))
         .collect();
     assert_eq!(interfaces, vec!["lo".to_string()], "the test's network namespace has only loopback");
 
