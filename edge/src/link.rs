@@ -105,7 +105,17 @@ pub struct RobotState {
 /// change (the battery: once per whole percent or change of `low`).
 #[derive(Default)]
 pub struct StatusReporter {
-    last: Option<(bool, bool, bool, Option<(i64, bool)>)>,
+    last: Option<Reported>,
+}
+
+/// What was last reported: e-stop, deadman tripped, the robot's own e-stop,
+/// and the battery (whole percent, low).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Reported {
+    estop: bool,
+    deadman_tripped: bool,
+    platform_estop: bool,
+    battery: Option<(i64, bool)>,
 }
 
 impl StatusReporter {
@@ -117,7 +127,7 @@ impl StatusReporter {
         let estop = verdict == Verdict::EStop;
         let tripped = verdict.deadman_tripped();
         let battery = robot.battery.map(|b| ((b.fraction * 100.0).round() as i64, b.low));
-        let key = (estop, tripped, robot.platform_estop, battery);
+        let key = Reported { estop, deadman_tripped: tripped, platform_estop: robot.platform_estop, battery };
         if self.last == Some(key) {
             return None;
         }
