@@ -39,9 +39,11 @@ IMAGE_BINARIES = vlnav vlnav-gateway vlnav-ingress vlnav-planner vlnav-detector 
 	vlnav-subgoal vlnav-local-planner vlnav-edge
 IMAGE_PACKAGES = $(filter-out vlnav-edge,$(IMAGE_BINARIES)) vlnav-edge-agent
 
+# The edge agent's ROS 2 driver is a cargo feature (it adds RustDDS to the
+# build; edge/README.md); the tests build and run it.
 test: system models tools llama-server
-	cargo test --workspace --no-fail-fast
+	cargo test --workspace --no-fail-fast --features vlnav-edge-agent/ros2
 
 lint:
 	cargo fmt --all --check
-	cargo clippy --workspace --all-targets -- -D warnings
+	cargo clippy --workspace --all-targets --features vlnav-edge-agent/ros2 -- -D warnings

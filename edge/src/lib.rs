@@ -4,8 +4,10 @@
 //! safety governor (deadman in sensor time, velocity/acceleration limits,
 //! e-stop) that no remote service can override.
 //!
-//! Drivers: `sim` (the [`vlnav_sim`] simulator, real time or lockstep) and
-//! `ros1` (a ROS 1 node: `/cmd_vel` out; odometry and RealSense topics in).
+//! Drivers: `sim` (the [`vlnav_sim`] simulator, real time or lockstep),
+//! `ros1` (a ROS 1 node: `/cmd_vel` out; odometry and RealSense topics in)
+//! and `ros2` (a ROS 2 node on DDS, cargo feature `ros2`: `<ns>/cmd_vel` out;
+//! odometry, RealSense, e-stop and battery topics in).
 //!
 //! For evaluation, [`run_with`] takes [`Hooks`]: an observer channel that
 //! receives one [`StepRecord`] per frame (with the simulator's ground truth),
@@ -16,6 +18,9 @@
 pub mod convert;
 pub mod link;
 pub mod ros1;
+#[cfg(feature = "ros2")]
+pub mod ros2;
+pub mod ros_common;
 pub mod safety;
 pub mod sim;
 
@@ -43,6 +48,9 @@ pub enum DriverKind {
     Sim,
     /// A ROS 1 robot (Husky): `ROS_MASTER_URI` names the master.
     Ros1,
+    /// A ROS 2 robot (Husky A300 on Jazzy, A200 on Humble or Jazzy) over DDS
+    /// (`ROS_DOMAIN_ID`); needs a build with the cargo feature `ros2`.
+    Ros2,
 }
 
 impl DriverKind {
@@ -50,8 +58,33 @@ impl DriverKind {
         match self {
             DriverKind::Sim => "sim",
             DriverKind::Ros1 => "ros1",
+            DriverKind::Ros2 => "ros2",
         }
     }
+}
+
+/// The ROS 2 distribution the robot runs: it decides the type of `cmd_vel`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RosDistro {
+    /// `geometry_msgs/msg/TwistStamped` on `cmd_vel` (Clearpath's Jazzy platforms).
+    #[default]
+    Jazzy,
+    /// `geometry_msgs/msg/Twist` on `cmd_vel`.
+    Humble,
+}
+
+/// The topics a ROS driver uses, with the driver's defaults filled in.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct RosTopics {
+    pub cmd_vel: String,
+    pub odom: String,
+    pub color: String,
+    pub depth: String,
+    pub camera_info: String,
+    /// ROS 2 only.
+    pub estop: String,
+    /// ROS 2 only.
+    pub battery: String,
 }
 
 /// How depth travels to the gateway (docs/architecture.md, "Frames").
@@ -125,31 +158,58 @@ pub struct EdgeOptions {
     /// Largest gRPC message sent or accepted, bytes.
     #[arg(long, env = "VLNAV_EDGE_MAX_MESSAGE_BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_message_bytes: usize,
-    /// ros1: node name.
+    /// ros1, ros2: node name.
     #[arg(long, env = "VLNAV_EDGE_ROS_NODE", default_value = "vlnav_edge")]
     pub ros_node: String,
-    /// ros1: velocity command topic (geometry_msgs/Twist).
-    #[arg(long, env = "VLNAV_EDGE_CMD_VEL_TOPIC", default_value = "/cmd_vel")]
-    pub cmd_vel_topic: String,
-    /// ros1: odometry topic (nav_msgs/Odometry).
-    #[arg(long, env = "VLNAV_EDGE_ODOM_TOPIC", default_value = "/odometry/filtered")]
-    pub odom_topic: String,
-    /// ros1: colour image topic (sensor_msgs/Image, rgb8/bgr8/rgba8/bgra8).
-    #[arg(long, env = "VLNAV_EDGE_COLOR_TOPIC", default_value = "/camera/color/image_raw")]
-    pub color_topic: String,
-    /// ros1: depth aligned to colour (sensor_msgs/Image, 16UC1 mm or 32FC1 m).
-    #[arg(long, env = "VLNAV_EDGE_DEPTH_TOPIC", default_value = "/camera/aligned_depth_to_color/image_raw")]
-    pub depth_topic: String,
-    /// ros1: colour camera intrinsics (sensor_msgs/CameraInfo).
-    #[arg(long, env = "VLNAV_EDGE_CAMERA_INFO_TOPIC", default_value = "/camera/color/camera_info")]
-    pub camera_info_topic: String,
-    /// ros1: camera body pose in base_link: x,y,z (m),yaw (rad).
+    /// ros2: the robot's namespace (Clearpath: the serial number, e.g.
+    /// `a300_0001`); relative topic names resolve under it.
+    #[arg(long, env = "VLNAV_EDGE_ROS_NAMESPACE", default_value = "")]
+    pub ros_namespace: String,
+    /// ros2: the robot's ROS 2 distribution: `jazzy` publishes TwistStamped on
+    /// cmd_vel, `humble` Twist.
+    #[arg(long, env = "VLNAV_EDGE_ROS_DISTRO", value_enum, default_value_t = RosDistro::Jazzy)]
+    pub ros_distro: RosDistro,
+    /// ros2: take "now" from `/clock` (the `use_sim_time` parameter of ROS 2
+    /// nodes) instead of the newest stamp plus the wall time since it arrived.
+    #[arg(long, env = "VLNAV_EDGE_USE_SIM_TIME", default_value_t = false)]
+    pub use_sim_time: bool,
+    /// Velocity command topic. ros1: `/cmd_vel` (geometry_msgs/Twist); ros2:
+    /// `cmd_vel` (TwistStamped on jazzy, Twist on humble).
+    #[arg(long, env = "VLNAV_EDGE_CMD_VEL_TOPIC")]
+    pub cmd_vel_topic: Option<String>,
+    /// Odometry topic (nav_msgs/Odometry). ros1: `/odometry/filtered`; ros2:
+    /// `platform/odom/filtered`.
+    #[arg(long, env = "VLNAV_EDGE_ODOM_TOPIC")]
+    pub odom_topic: Option<String>,
+    /// Colour image topic (sensor_msgs/Image, rgb8/bgr8/rgba8/bgra8/mono8).
+    /// ros1: `/camera/color/image_raw`; ros2: `/camera/camera/color/image_raw`.
+    #[arg(long, env = "VLNAV_EDGE_COLOR_TOPIC")]
+    pub color_topic: Option<String>,
+    /// Depth aligned to colour (sensor_msgs/Image, 16UC1 mm or 32FC1 m). ros1:
+    /// `/camera/aligned_depth_to_color/image_raw`; ros2:
+    /// `/camera/camera/aligned_depth_to_color/image_raw`.
+    #[arg(long, env = "VLNAV_EDGE_DEPTH_TOPIC")]
+    pub depth_topic: Option<String>,
+    /// Colour camera intrinsics (sensor_msgs/CameraInfo). ros1:
+    /// `/camera/color/camera_info`; ros2: `/camera/camera/color/camera_info`.
+    #[arg(long, env = "VLNAV_EDGE_CAMERA_INFO_TOPIC")]
+    pub camera_info_topic: Option<String>,
+    /// ros2: the robot's emergency stop (std_msgs/Bool, true = engaged).
+    #[arg(long, env = "VLNAV_EDGE_ESTOP_TOPIC", default_value = "platform/emergency_stop")]
+    pub estop_topic: String,
+    /// ros2: the robot's battery (sensor_msgs/BatteryState).
+    #[arg(long, env = "VLNAV_EDGE_BATTERY_TOPIC", default_value = "platform/bms/state")]
+    pub battery_topic: String,
+    /// Charge (0 to 1) below which the battery is reported low.
+    #[arg(long, env = "VLNAV_EDGE_BATTERY_LOW", default_value_t = 0.2)]
+    pub battery_low: f64,
+    /// ros1, ros2: camera body pose in base_link: x,y,z (m),yaw (rad).
     #[arg(long, env = "VLNAV_EDGE_CAMERA_MOUNT", value_delimiter = ',', num_args = 4, default_values_t = [0.30, 0.0, 0.60, 0.0])]
     pub camera_mount: Vec<f64>,
-    /// ros1: /cmd_vel publish rate, Hz (the deadman is checked at this rate).
+    /// ros1, ros2: cmd_vel publish rate, Hz (the deadman is checked at this rate).
     #[arg(long, env = "VLNAV_EDGE_CONTROL_RATE_HZ", default_value_t = 20.0)]
     pub control_rate_hz: f64,
-    /// ros1: the platform's limits (Husky A200 defaults).
+    /// ros1, ros2: the platform's limits (Husky A200 defaults).
     #[arg(long, env = "VLNAV_EDGE_MAX_LINEAR", default_value_t = 1.0)]
     pub max_linear: f64,
     #[arg(long, env = "VLNAV_EDGE_MAX_ANGULAR", default_value_t = 2.0)]
@@ -182,11 +242,17 @@ impl Default for EdgeOptions {
             depth_codec: DepthCodec::Raw,
             max_message_bytes: 16 * 1024 * 1024,
             ros_node: "vlnav_edge".into(),
-            cmd_vel_topic: "/cmd_vel".into(),
-            odom_topic: "/odometry/filtered".into(),
-            color_topic: "/camera/color/image_raw".into(),
-            depth_topic: "/camera/aligned_depth_to_color/image_raw".into(),
-            camera_info_topic: "/camera/color/camera_info".into(),
+            ros_namespace: String::new(),
+            ros_distro: RosDistro::Jazzy,
+            use_sim_time: false,
+            cmd_vel_topic: None,
+            odom_topic: None,
+            color_topic: None,
+            depth_topic: None,
+            camera_info_topic: None,
+            estop_topic: "platform/emergency_stop".into(),
+            battery_topic: "platform/bms/state".into(),
+            battery_low: 0.2,
             camera_mount: vec![0.30, 0.0, 0.60, 0.0],
             control_rate_hz: 20.0,
             max_linear: 1.0,
@@ -223,10 +289,36 @@ impl EdgeOptions {
         if self.camera_mount.len() != 4 || !self.camera_mount.iter().all(|v| v.is_finite()) {
             anyhow::bail!("--camera-mount takes x,y,z,yaw (four numbers), got {:?}", self.camera_mount);
         }
+        if !(0.0..=1.0).contains(&self.battery_low) {
+            anyhow::bail!("--battery-low is a charge from 0 to 1, got {}", self.battery_low);
+        }
         if self.lockstep && self.driver != DriverKind::Sim {
             anyhow::bail!("--lockstep needs --driver sim (a real robot cannot wait for the gateway)");
         }
         Ok(())
+    }
+}
+
+impl EdgeOptions {
+    /// The topics of the ROS driver, each flag left out taking the driver's default.
+    pub fn ros_topics(&self) -> RosTopics {
+        let ros2 = self.driver == DriverKind::Ros2;
+        let pick = |flag: &Option<String>, ros1: &str, ros2_default: &str| {
+            flag.clone().unwrap_or_else(|| if ros2 { ros2_default } else { ros1 }.to_string())
+        };
+        RosTopics {
+            cmd_vel: pick(&self.cmd_vel_topic, "/cmd_vel", "cmd_vel"),
+            odom: pick(&self.odom_topic, "/odometry/filtered", "platform/odom/filtered"),
+            color: pick(&self.color_topic, "/camera/color/image_raw", "/camera/camera/color/image_raw"),
+            depth: pick(
+                &self.depth_topic,
+                "/camera/aligned_depth_to_color/image_raw",
+                "/camera/camera/aligned_depth_to_color/image_raw",
+            ),
+            camera_info: pick(&self.camera_info_topic, "/camera/color/camera_info", "/camera/camera/color/camera_info"),
+            estop: self.estop_topic.clone(),
+            battery: self.battery_topic.clone(),
+        }
     }
 }
 
@@ -353,6 +445,12 @@ pub async fn run_with(opts: EdgeOptions, shutdown: CancellationToken, hooks: Hoo
     match opts.driver {
         DriverKind::Sim => sim::run_sim(&opts, shutdown, hooks).await,
         DriverKind::Ros1 => ros1::run_ros1(&opts, shutdown, hooks).await,
+        #[cfg(feature = "ros2")]
+        DriverKind::Ros2 => ros2::run_ros2(&opts, shutdown, hooks).await,
+        #[cfg(not(feature = "ros2"))]
+        DriverKind::Ros2 => anyhow::bail!(
+            "this vlnav-edge was built without the ROS 2 driver: cargo build --release -p vlnav-edge-agent --features ros2"
+        ),
     }
 }
 

@@ -93,21 +93,47 @@ impl Link {
     }
 }
 
-/// Reports e-stop and deadman changes to the gateway, once per change.
+/// What the robot itself reports besides its sensors: its own e-stop and
+/// its battery (ROS 2 robots; the other drivers report neither).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct RobotState {
+    pub platform_estop: bool,
+    pub battery: Option<pb::BatteryStatus>,
+}
+
+/// Reports e-stop, deadman and robot-state changes to the gateway, once per
+/// change (the battery: once per whole percent or change of `low`).
 #[derive(Default)]
 pub struct StatusReporter {
-    last: Option<(bool, bool)>,
+    last: Option<Reported>,
+}
+
+/// What was last reported: e-stop, deadman tripped, the robot's own e-stop,
+/// and the battery (whole percent, low).
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Reported {
+    estop: bool,
+    deadman_tripped: bool,
+    platform_estop: bool,
+    battery: Option<(i64, bool)>,
 }
 
 impl StatusReporter {
     pub fn update(&mut self, stamp: f64, verdict: Verdict) -> Option<pb::EdgeMessage> {
+        self.update_with(stamp, verdict, RobotState::default())
+    }
+
+    pub fn update_with(&mut self, stamp: f64, verdict: Verdict, robot: RobotState) -> Option<pb::EdgeMessage> {
         let estop = verdict == Verdict::EStop;
         let tripped = verdict.deadman_tripped();
-        if self.last == Some((estop, tripped)) {
+        let battery = robot.battery.map(|b| ((b.fraction * 100.0).round() as i64, b.low));
+        let key = Reported { estop, deadman_tripped: tripped, platform_estop: robot.platform_estop, battery };
+        if self.last == Some(key) {
             return None;
         }
-        self.last = Some((estop, tripped));
+        self.last = Some(key);
         let detail = match verdict {
+            Verdict::EStop if robot.platform_estop => "the robot's emergency stop is engaged: holding zero velocity",
             Verdict::EStop => "e-stop engaged: holding zero velocity",
             Verdict::DeadmanTripped => "deadman: no fresh command, holding zero velocity",
             Verdict::NoCommand => "waiting for the first command, holding zero velocity",
@@ -118,6 +144,8 @@ impl StatusReporter {
             estop,
             deadman_tripped: tripped,
             detail: detail.into(),
+            platform_estop: robot.platform_estop,
+            battery: robot.battery,
         })))
     }
 

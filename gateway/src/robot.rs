@@ -257,6 +257,20 @@ fn newest_frame(
     (newest, others, skipped)
 }
 
+/// Why a mission may not start on this robot now: its emergency stop (its
+/// own or its edge agent's) is engaged. The edge agent holds the robot at
+/// zero while it is, whatever the gateway sends (edge/README.md).
+fn estop_refusal(info: &RobotInfo) -> Option<String> {
+    if !info.connected || !info.estop {
+        return None;
+    }
+    let whose = if info.platform_estop { "the robot's own emergency stop" } else { "its edge agent's e-stop" };
+    Some(format!(
+        "robot '{}' has {whose} engaged (reported at sensor time {:.3} s); release it, then submit the mission again",
+        info.robot_id, info.last_stamp
+    ))
+}
+
 fn clear_active(info: &Mutex<RobotInfo>) {
     if let Ok(mut i) = info.lock() {
         i.active_mission_id.clear();
@@ -358,6 +372,10 @@ impl RobotActor {
                     self.update(|i| {
                         i.estop = status.estop;
                         i.deadman_tripped = status.deadman_tripped;
+                        i.platform_estop = status.platform_estop;
+                        if status.battery.is_some() {
+                            i.battery = status.battery;
+                        }
                     });
                 }
             }
@@ -367,11 +385,13 @@ impl RobotActor {
                 }
             }
             RobotMsg::Reserve { mission_id, reply } => {
+                let estop = self.info.lock().ok().and_then(|i| estop_refusal(&i));
                 let r = match self.busy_with() {
                     Some(other) => Err(Status::failed_precondition(format!(
                         "robot '{}' is busy with mission {other}; cancel it (CancelMission) or wait for it to finish",
                         self.robot_id
                     ))),
+                    None if estop.is_some() => Err(Status::failed_precondition(estop.unwrap_or_default())),
                     None => {
                         self.reserved = Some(mission_id);
                         Ok(())
@@ -548,6 +568,20 @@ mod tests {
             RobotMsg::Frame { conn, frame } => Some((*conn, frame.frame().seq)),
             _ => None,
         }
+    }
+
+    #[test]
+    fn a_mission_is_refused_while_either_estop_is_engaged() {
+        let mut info = RobotInfo { robot_id: "a300".into(), connected: true, ..Default::default() };
+        assert_eq!(estop_refusal(&info), None);
+        info.estop = true;
+        info.platform_estop = true;
+        let why = estop_refusal(&info).unwrap();
+        assert!(why.contains("robot 'a300' has the robot's own emergency stop engaged"), "{why}");
+        info.platform_estop = false;
+        assert!(estop_refusal(&info).unwrap().contains("edge agent's e-stop"));
+        info.connected = false;
+        assert_eq!(estop_refusal(&info), None, "only an attached robot's report counts");
     }
 
     #[tokio::test]

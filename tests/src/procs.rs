@@ -109,6 +109,8 @@ pub fn binaries() -> anyhow::Result<PathBuf> {
             for (package, bin) in DEPLOYED {
                 cmd.args(["-p", package, "--bin", bin]);
             }
+            // The edge agent with its ROS 2 driver, as `make test` builds it (tests/tests/ros2_robot.rs).
+            cmd.args(["--features", "vlnav-edge-agent/ros2"]);
             let out = cmd.output().map_err(|e| format!("cannot run cargo: {e}"))?;
             if !out.status.success() {
                 return Err(format!("building the servers failed:\n{}", String::from_utf8_lossy(&out.stderr)));

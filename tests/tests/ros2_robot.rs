@@ -1,0 +1,375 @@
+//! A ROS 2 robot end to end: `vlnav up --no-robot` (every stage and the
+//! gateway, TLS), `vlnav-edge --driver ros2` with the robot's certificate,
+//! and a fake Husky A300 written with the real rclpy of ROS 2 Jazzy on Fast
+//! DDS (`ros2_robot/fake_a300.py`, from PyPI: deploy/tools.d/ros2.txt).
+//!
+//! Checks, in the robot's own stamps:
+//! - the robot's battery and e-stop reach ListRobots;
+//! - a mission is refused (FAILED_PRECONDITION, saying why) while the
+//!   robot's e-stop is engaged;
+//! - a mission drives the robot: it receives `geometry_msgs/TwistStamped` on
+//!   `/a300_0001/cmd_vel` and its odometry advances;
+//! - engaging the e-stop mid-mission makes every command zero within one
+//!   e-stop message period and one control cycle; releasing it drives again;
+//! - a gateway that stops answering (SIGSTOP) makes the command zero within
+//!   the deadman timeout and one control cycle; one that is killed leaves
+//!   the robot at zero.
+//!
+//! DDS finds peers by multicast, so the test runs itself again inside its own
+//! user and network namespace (`unshare -rn`) that has only loopback, with a
+//! multicast route on it: nothing it sends leaves this machine.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant, SystemTime};
+
+use serde_json::Value;
+use vlnav_e2e::procs::binaries;
+use vlnav_e2e::repo_root;
+use vlnav_proto::v1::fleet_service_client::FleetServiceClient;
+use vlnav_proto::v1::mission_service_client::MissionServiceClient;
+use vlnav_proto::v1::submit_mission_request::Instruction;
+use vlnav_proto::v1::{GetMissionRequest, ListRobotsRequest, MissionState, RobotInfo, SubmitMissionRequest};
+use vlnav_runtime::client::{TracedChannel, channel_with};
+use vlnav_runtime::security::{ClientSecurity, ClientTlsArgs};
+
+const TEST: &str = "a_mission_drives_a_ros2_robot_and_its_estop_and_the_deadman_stop_it";
+const INSIDE: &str = "VLNAV_ROS2_TEST_NETNS";
+const ROBOT: &str = "a300-1";
+const NAMESPACE: &str = "a300_0001";
+const DEADMAN_S: f64 = 0.3;
+const CONTROL_HZ: f64 = 20.0;
+/// The fake robot publishes its e-stop at 10 Hz.
+const ESTOP_PERIOD_S: f64 = 0.1;
+/// DDS delivery and scheduling on a loaded 2-core machine.
+const TRANSPORT_SLACK_S: f64 = 0.15;
+/// A control tick that a loaded machine runs late (the stamps are taken when
+/// the tick runs).
+const TICK_SLACK_S: f64 = 1.0 / CONTROL_HZ;
+
+#[test]
+fn a_mission_drives_a_ros2_robot_and_its_estop_and_the_deadman_stop_it() {
+    if std::env::var_os(INSIDE).is_some() {
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+        rt.block_on(inside_the_namespace());
+        return;
+    }
+    // Build outside: cargo needs the network namespace's outside (its registry, its jobserver).
+    let bin = binaries().expect("the deployment's binaries build");
+    let exe = std::env::current_exe().expect("the test executable's path");
+    let script = "ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"";
+    let status = Command::new("unshare")
+        .args(["--user", "--map-root-user", "--net", "sh", "-c", script])
+        .arg(&exe)
+        .args(["--exact", TEST, "--nocapture", "--test-threads=1"])
+        .env(INSIDE, "1")
+        .env("VLNAV_BIN_DIR", &bin)
+        .status()
+        .unwrap_or_else(|e| {
+            panic!("cannot run unshare: {e}. The ROS 2 test runs DDS in a network namespace of its own: it needs util-linux's unshare, iproute2's ip and unprivileged user namespaces")
+        });
+    assert!(status.success(), "the ROS 2 test failed inside its network namespace (its output is above): {status}");
+}
+
+/// Kills the child when dropped (the test may panic).
+struct Proc(Child);
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn spawn(what: &str, mut cmd: Command) -> Proc {
+    Proc(cmd.spawn().unwrap_or_else(|e| panic!("cannot start {what}: {e}")))
+}
+
+fn wall_now() -> f64 {
+    SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).expect("the clock is after 1970").as_secs_f64()
+}
+
+/// The venv's Python with rclpy, or a failure saying how to install it.
+fn ros2_python() -> PathBuf {
+    let python = repo_root().join(".venv/bin/python");
+    let ok = Command::new(&python)
+        .args(["-c", "import rclpy, geometry_msgs.msg, nav_msgs.msg, sensor_msgs.msg, std_msgs.msg"])
+        .env("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+        .status()
+        .is_ok_and(|s| s.success());
+    assert!(
+        ok,
+        "{} cannot import rclpy and the message packages: run deploy/setup-tools.sh (or `make test`), which installs deploy/tools.d/ros2.txt",
+        python.display()
+    );
+    python
+}
+
+/// What the fake robot printed: JSON lines.
+#[derive(Clone, Default)]
+struct RobotLog(Arc<Mutex<Vec<Value>>>);
+
+impl RobotLog {
+    fn follow(&self, out: impl std::io::Read + Send + 'static) {
+        let log = self.0.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                if let Ok(v) = serde_json::from_str::<Value>(&line) {
+                    log.lock().unwrap().push(v);
+                }
+            }
+        });
+    }
+
+    fn all(&self, kind: &str) -> Vec<Value> {
+        self.0.lock().unwrap().iter().filter_map(|v| v.get(kind).cloned()).collect()
+    }
+
+    /// Commands received: (header stamp, receipt on the robot's clock, linear, angular).
+    fn commands(&self) -> Vec<Cmd> {
+        self.all("cmd")
+            .iter()
+            .map(|c| Cmd {
+                stamp: c["stamp"].as_f64().unwrap_or(f64::NAN),
+                recv: c["recv"].as_f64().unwrap_or(f64::NAN),
+                linear: c["linear"].as_f64().unwrap_or(f64::NAN),
+                angular: c["angular"].as_f64().unwrap_or(f64::NAN),
+            })
+            .collect()
+    }
+
+    fn odom_x(&self) -> f64 {
+        self.all("odom").last().and_then(|o| o["x"].as_f64()).unwrap_or(0.0)
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Cmd {
+    stamp: f64,
+    recv: f64,
+    linear: f64,
+    angular: f64,
+}
+
+impl Cmd {
+    fn moves(&self) -> bool {
+        self.linear != 0.0 || self.angular != 0.0
+    }
+}
+
+fn estop(stdin: &mut ChildStdin, on: bool) -> f64 {
+    let at = wall_now();
+    writeln!(stdin, "estop {}", if on { "on" } else { "off" }).expect("the fake robot reads its stdin");
+    stdin.flush().expect("the fake robot reads its stdin");
+    at
+}
+
+async fn wait_for<T>(what: &str, limit: Duration, mut f: impl AsyncFnMut() -> Option<T>) -> T {
+    let start = Instant::now();
+    loop {
+        if let Some(v) = f().await {
+            return v;
+        }
+        assert!(start.elapsed() < limit, "{what}: not within {} s", limit.as_secs());
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+}
+
+async fn robot_info(fleet: &mut FleetServiceClient<TracedChannel>) -> Option<RobotInfo> {
+    let robots = fleet.list_robots(ListRobotsRequest {}).await.ok()?.into_inner().robots;
+    robots.into_iter().find(|r| r.robot_id == ROBOT)
+}
+
+fn submit(text: &str) -> SubmitMissionRequest {
+    SubmitMissionRequest { robot_id: ROBOT.into(), instruction: Some(Instruction::Text(text.into())), dry_run: false }
+}
+
+async fn inside_the_namespace() {
+    // /proc/net/dev lists this network namespace's interfaces (/sys/class/net
+    // shows the namespace sysfs was mounted in).
+    let interfaces: Vec<String> = std::fs::read_to_string("/proc/net/dev")
+        .expect("/proc/net/dev")
+        .lines()
+        .skip(2)
+        .filter_map(|l| l.split(':').next().map(|n| n.trim().to_string()))
+        .collect();
+    assert_eq!(interfaces, vec!["lo".to_string()], "the test's network namespace has only loopback");
+
+    let bin = binaries().expect("the binaries were built outside");
+    let python = ros2_python();
+    let data = tempfile::tempdir().unwrap();
+    let models = std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("models"));
+    assert!(models.join("minilm").exists(), "models are missing in {}: run deploy/fetch-models.sh", models.display());
+
+    // 1. The stack, without a robot. A fresh network namespace has every port free.
+    //    Realistic perception: its colour segmenter reads a real camera's frames (the
+    //    oracle's needs the simulator's label images; the simulated detector, lacking
+    //    them too, is skipped and the robot drives without person boxes).
+    let gateway_addr = "127.0.0.1:50051";
+    let mut up = Command::new(bin.join("vlnav"));
+    up.args(["up", "--no-robot", "--robot-id", ROBOT, "--perception", "realistic", "--listen", gateway_addr])
+        .arg("--data-dir")
+        .arg(data.path())
+        .env("VLNAV_MODELS_DIR", &models)
+        .env("VLNAV_LIVE_VIEW", "off")
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    let mut gateway = spawn("vlnav up --no-robot", up);
+    let security = data.path().join("security");
+    let (ca, cert, key) = (
+        security.join("ca.pem"),
+        security.join(format!("robot-{ROBOT}.pem")),
+        security.join(format!("robot-{ROBOT}-key.pem")),
+    );
+    let token = wait_for("vlnav up writes its credentials", Duration::from_secs(120), async || {
+        let t = std::fs::read_to_string(security.join("operator.token")).ok()?;
+        (key.exists() && std::net::TcpStream::connect(gateway_addr).is_ok()).then(|| t.trim().to_string())
+    })
+    .await;
+    let tls = ClientTlsArgs { tls_ca: Some(ca.clone()), tls_client_cert: None, tls_client_key: None };
+    let operator = ClientSecurity::new(tls.load().unwrap(), Some(token));
+    let channel = channel_with(&format!("https://{gateway_addr}"), &operator).unwrap();
+    let mut fleet = FleetServiceClient::new(channel.clone());
+    let mut missions = MissionServiceClient::new(channel);
+
+    // 2. The fake A300.
+    let mut a300 = Command::new(&python);
+    a300.arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/ros2_robot/fake_a300.py"))
+        .args(["--namespace", NAMESPACE, "--wall-x", "12"])
+        .env("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+        .env("ROS_DOMAIN_ID", "17")
+        .env("PYTHONUNBUFFERED", "1")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
+    let mut a300 = spawn("the fake A300 (rclpy)", a300);
+    let log = RobotLog::default();
+    log.follow(a300.0.stdout.take().unwrap());
+    let mut a300_in = a300.0.stdin.take().unwrap();
+
+    // 3. The edge agent, as a user runs it on the robot's computer.
+    let mut edge = Command::new(bin.join("vlnav-edge"));
+    edge.args(["--driver", "ros2", "--ros-namespace", NAMESPACE, "--robot-id", ROBOT])
+        .args(["--gateway", &format!("https://{gateway_addr}")])
+        .arg("--tls-ca")
+        .arg(&ca)
+        .arg("--tls-client-cert")
+        .arg(&cert)
+        .arg("--tls-client-key")
+        .arg(&key)
+        .args(["--deadman-timeout-s", &DEADMAN_S.to_string(), "--control-rate-hz", &CONTROL_HZ.to_string()])
+        .env("ROS_DOMAIN_ID", "17")
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    let _edge = spawn("vlnav-edge --driver ros2", edge);
+
+    // The robot attached, its frames and battery arrive.
+    let info = wait_for("the ROS 2 robot attached, with frames and its battery", Duration::from_secs(60), async || {
+        robot_info(&mut fleet).await.filter(|r| r.connected && r.frames_received > 5 && r.battery.is_some())
+    })
+    .await;
+    assert_eq!(info.driver, "ros2");
+    let battery = info.battery.unwrap();
+    assert!((battery.fraction - 0.87).abs() < 1e-3 && (battery.voltage - 25.6).abs() < 1e-3, "{battery:?}");
+    assert!(!battery.low && !info.estop && !info.platform_estop, "{info:?}");
+    assert!(log.commands().iter().all(|c| !c.moves()), "nothing moves before a mission");
+    assert!(!log.commands().is_empty(), "the edge agent holds cmd_vel at zero while idle");
+
+    // 4. No mission starts while the robot's e-stop is engaged.
+    estop(&mut a300_in, true);
+    wait_for("the robot's e-stop in ListRobots", Duration::from_secs(10), async || {
+        robot_info(&mut fleet).await.filter(|r| r.estop && r.platform_estop)
+    })
+    .await;
+    let refused = missions.submit_mission(submit("move 5 m ahead")).await.unwrap_err();
+    assert_eq!(refused.code(), tonic::Code::FailedPrecondition, "{refused:?}");
+    assert!(refused.message().contains("emergency stop engaged"), "{}", refused.message());
+    estop(&mut a300_in, false);
+    wait_for("the e-stop released in ListRobots", Duration::from_secs(10), async || {
+        robot_info(&mut fleet).await.filter(|r| !r.estop && !r.platform_estop)
+    })
+    .await;
+
+    // 5. A mission drives it.
+    let mission = missions.submit_mission(submit("move 8 m ahead")).await.expect("SubmitMission").into_inner();
+    wait_for("the robot driven 0.5 m by the mission", Duration::from_secs(90), async || {
+        (log.odom_x() > 0.5).then_some(())
+    })
+    .await;
+    let cmds = log.commands();
+    let moving: Vec<&Cmd> = cmds.iter().filter(|c| c.moves()).collect();
+    assert!(moving.iter().all(|c| c.linear > 0.0 && c.linear <= 1.0 + 1e-9), "forward within the limit: {moving:?}");
+    for c in &moving {
+        // TwistStamped carries the edge agent's sensor time: the robot's clock.
+        assert!((c.recv - c.stamp).abs() < 1.0, "a command stamped {} arrived at {}", c.stamp, c.recv);
+    }
+
+    // 6. The robot's e-stop stops it, whatever the gateway says.
+    let engaged = estop(&mut a300_in, true);
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let info = robot_info(&mut fleet).await.expect("ListRobots");
+    assert!(info.estop && info.platform_estop, "{info:?}");
+    let cmds = log.commands();
+    let first_zero = cmds
+        .iter()
+        .find(|c| c.stamp >= engaged && !c.moves())
+        .copied()
+        .expect("a zero command after the e-stop was engaged");
+    let estop_bound = ESTOP_PERIOD_S + 1.0 / CONTROL_HZ + TRANSPORT_SLACK_S;
+    eprintln!("ros2 e-stop: zero cmd_vel stamped {:.3} s after the e-stop engaged", first_zero.stamp - engaged);
+    assert!(first_zero.stamp - engaged <= estop_bound, "zero {:.3} s after the e-stop", first_zero.stamp - engaged);
+    let late: Vec<&Cmd> = cmds.iter().filter(|c| c.stamp > engaged + estop_bound && c.moves()).collect();
+    assert!(late.is_empty(), "motion commanded while the e-stop was engaged: {late:?}");
+    let state = missions.get_mission(GetMissionRequest { mission_id: mission.mission_id.clone() }).await;
+    let state = state.expect("GetMission").into_inner().state;
+    assert_eq!(state, MissionState::Running as i32, "the mission waits while the robot is held");
+
+    // 7. Released, the mission drives again.
+    let released = estop(&mut a300_in, false);
+    wait_for("motion again after the e-stop is released", Duration::from_secs(30), async || {
+        log.commands().iter().any(|c| c.recv > released && c.moves()).then_some(())
+    })
+    .await;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+
+    // 8. The gateway freezes (SIGSTOP: its connection stays open, no command
+    //    comes): the edge agent's deadman commands zero within its timeout and
+    //    one control cycle, in the robot's stamps.
+    let pid = libc::pid_t::try_from(gateway.0.id()).expect("a pid");
+    // SAFETY: a signal to the child this test spawned.
+    assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0, "SIGSTOP to vlnav up");
+    let frozen = wall_now();
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let cmds = log.commands();
+    let before: Vec<&Cmd> = cmds.iter().filter(|c| c.recv <= frozen).collect();
+    assert!(before.last().is_some_and(|c| c.moves()), "the robot was moving when the gateway froze");
+    let last_moving = cmds.iter().rposition(|c| c.moves()).expect("the robot moved");
+    let first_zero = *cmds.get(last_moving + 1).expect("a zero command after the last motion");
+    // The last command answered a frame stamped before the freeze.
+    let bound = DEADMAN_S + 1.0 / CONTROL_HZ + TICK_SLACK_S;
+    eprintln!(
+        "ros2 deadman: zero cmd_vel stamped {:.3} s after the gateway froze (received {:.3} s after; deadman {DEADMAN_S} s + one {:.2} s cycle)",
+        first_zero.stamp - frozen,
+        first_zero.recv - frozen,
+        1.0 / CONTROL_HZ
+    );
+    assert!(first_zero.stamp - frozen <= bound, "zero stamped {:.3} s after the freeze", first_zero.stamp - frozen);
+    assert!(
+        first_zero.recv - frozen <= bound + TRANSPORT_SLACK_S,
+        "zero received {:.3} s after the freeze",
+        first_zero.recv - frozen
+    );
+    assert!(cmds.iter().filter(|c| c.stamp > first_zero.stamp).count() >= 10, "zero keeps being published");
+
+    // 9. The gateway dies (SIGKILL): the robot stays at zero, the agent reconnecting.
+    let _ = gateway.0.kill();
+    let killed = wall_now();
+    let _ = gateway.0.wait();
+    tokio::time::sleep(Duration::from_millis(1000)).await;
+    let after: Vec<Cmd> = log.commands().into_iter().filter(|c| c.recv > killed).collect();
+    assert!(after.len() >= 10 && after.iter().all(|c| !c.moves()), "zero held after the gateway died: {after:?}");
+}
