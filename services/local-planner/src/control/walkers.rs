@@ -40,6 +40,15 @@ pub(super) struct NearPeople {
     pub(super) touches: bool,
 }
 
+/// Distance from the footprint at (x, y, θ) (`base_link` of this frame) to
+/// the point `q`, m: 0 inside it.
+fn footprint_gap(q: &Vector2<f64>, x: f64, y: f64, th: f64, p: &FollowParams) -> f64 {
+    let (s, c) = th.sin_cos();
+    let (dx, dy) = (q.x - x, q.y - y);
+    let (bx, by) = (c * dx + s * dy, -s * dx + c * dy);
+    Vector2::new((bx.abs() - p.half_length_m).max(0.0), (by.abs() - p.half_width_m).max(0.0)).norm()
+}
+
 impl RobotState {
     /// The command slowed near people (`PeopleParams::slow_gap_m`): for
     /// each person tracked or recalled (`Tracker::people_around`), the
@@ -59,13 +68,7 @@ impl RobotState {
             return near;
         }
         let corner = p.half_length_m.hypot(p.half_width_m);
-        let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| {
-            let (s, c) = th.sin_cos();
-            let (dx, dy) = (q.x - x, q.y - y);
-            let (bx, by) = (c * dx + s * dy, -s * dx + c * dy);
-            Vector2::new((bx.abs() - p.half_length_m).max(0.0), (by.abs() - p.half_width_m).max(0.0)).norm()
-                - pp.radius_m
-        };
+        let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| footprint_gap(q, x, y, th, p) - pp.radius_m;
         let people = self.people.people_around(input.stamp, &input.pose, pp);
         let mut scale: f64 = 1.0;
         for q in &people {
@@ -124,13 +127,7 @@ impl RobotState {
         if walkers == 0 {
             return false;
         }
-        // Distance from the footprint at (x, y, θ) to the point q.
-        let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| {
-            let (s, c) = th.sin_cos();
-            let (dx, dy) = (q.x - x, q.y - y);
-            let (bx, by) = (c * dx + s * dy, -s * dx + c * dy);
-            Vector2::new((bx.abs() - p.half_length_m).max(0.0), (by.abs() - p.half_width_m).max(0.0)).norm()
-        };
+        let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| footprint_gap(q, x, y, th, p);
         let mut moving = vec![f64::INFINITY; walkers];
         let mut still = vec![f64::INFINITY; walkers];
         for k in 0..=SAMPLES {
