@@ -145,28 +145,15 @@ impl RobotState {
 #[cfg(test)]
 mod tests {
     use nalgebra::Vector2;
-    use vlnav_geometry::{GoalSpec, Pose2};
+    use vlnav_geometry::Pose2;
 
-    use super::super::test_support::view_ahead;
+    use super::super::test_support::{drive_to, view_ahead};
     use super::super::{FollowParams, RobotState, StepInput};
     use super::{GIVE_WAY_AFTER_S, GIVE_WAY_MAX_M, GIVE_WAY_SPEED, GiveWay, TRAIL_KEEP_M};
     use crate::cloud::{Cell, ObstacleCloud};
 
     fn input(stamp: f64, x: f64, cloud: &ObstacleCloud) -> StepInput<'_> {
-        StepInput {
-            stamp,
-            pose: Pose2::new(x, 0.0, 0.0),
-            goal: GoalSpec {
-                pose: Pose2::new(5.0, 0.0, 0.0),
-                position_tolerance: 0.3,
-                yaw_tolerance: 0.2,
-                rotation_only: false,
-                landmark: None,
-            },
-            cloud,
-            max_speed: 0.0,
-            view: view_ahead(),
-        }
+        drive_to(stamp, Pose2::new(x, 0.0, 0.0), 5.0, cloud, view_ahead())
     }
 
     /// A robot that drove from x = 0 to x = 2 along the x axis.

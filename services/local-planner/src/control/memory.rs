@@ -301,7 +301,7 @@ mod tests {
     use nalgebra::Vector2;
     use vlnav_geometry::{GoalSpec, Pose2};
 
-    use super::super::test_support::view_ahead;
+    use super::super::test_support::{drive_to, view_ahead};
     use super::super::{FollowParams, RobotState, StepInput, View};
     use crate::cloud::{Cell, ObstacleCloud, SeenRange};
 
@@ -323,20 +323,7 @@ mod tests {
     /// The cells planned with after merging `cloud` into the memory, seen with `view`.
     fn merged_in_view(state: &mut RobotState, cloud: &ObstacleCloud, stamp: f64, view: View) -> Vec<Cell> {
         let p = FollowParams::default();
-        let input = StepInput {
-            stamp,
-            pose: Pose2::new(0.0, 0.0, 0.0),
-            goal: GoalSpec {
-                pose: Pose2::new(3.0, 0.0, 0.0),
-                position_tolerance: 0.3,
-                yaw_tolerance: 0.2,
-                rotation_only: false,
-                landmark: None,
-            },
-            cloud,
-            max_speed: 0.0,
-            view,
-        };
+        let input = drive_to(stamp, Pose2::new(0.0, 0.0, 0.0), 3.0, cloud, view);
         state.merge_memory(cloud, &input, &p).cells
     }
 

@@ -33,3 +33,22 @@ pub(super) fn turn_in_place_to(yaw: f64, empty: &ObstacleCloud) -> StepInput<'_>
         view: view_ahead(),
     }
 }
+
+/// A drive at `stamp` from `pose` toward a position goal at (`goal_x`, 0),
+/// seen with `view`.
+pub(super) fn drive_to(stamp: f64, pose: Pose2, goal_x: f64, cloud: &ObstacleCloud, view: View) -> StepInput<'_> {
+    StepInput {
+        stamp,
+        pose,
+        goal: GoalSpec {
+            pose: Pose2::new(goal_x, 0.0, 0.0),
+            position_tolerance: 0.3,
+            yaw_tolerance: 0.2,
+            rotation_only: false,
+            landmark: None,
+        },
+        cloud,
+        max_speed: 0.0,
+        view,
+    }
+}
