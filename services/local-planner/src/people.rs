@@ -105,6 +105,11 @@ pub struct PeopleParams {
     /// No command may bring the body nearer a person than this clearance
     /// (and nearer than it is), m: the robot stops for them (WAITING).
     pub touch_m: f64,
+    /// Where walkers alone turn the paths' choice more than this from the
+    /// choice without them, the robot keeps behind them instead of going
+    /// round (`control/behind.rs`), rad: about 30°, more than going round
+    /// one person a few metres ahead takes.
+    pub swerve_max_rad: f64,
 }
 
 impl Default for PeopleParams {
@@ -131,6 +136,7 @@ impl Default for PeopleParams {
             slow_per_m: 0.7,
             slow_recall_s: 4.0,
             touch_m: 0.2,
+            swerve_max_rad: 0.5,
         }
     }
 }

@@ -52,7 +52,7 @@ impl RobotState {
             .map(|q| input.pose.inverse_transform(q))
             .find(|q| q.norm() >= p.look_ahead_m && q.x > 0.0)
             .map_or(0.0, |q| q.y.atan2(q.x));
-        let plan = planner.plan(&self.cloud, *goal_base, speed / p.max_speed, course, &mut self.scratch);
+        let plan = self.plan_behind_walkers(planner, p, input, *goal_base, speed / p.max_speed, course);
         out.free_paths = plan.free_paths;
         out.path_scale = plan.scale;
         let Some(sel) = plan.selection else {

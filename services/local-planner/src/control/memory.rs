@@ -125,6 +125,7 @@ impl RobotState {
                 && input.view.sees_top(&b, p.memory_near_m, PERSON_HEIGHT_M)
         });
         let moving = self.moving_cells(cloud, &ats, input.stamp, p);
+        let mut moving_mask = moving.clone();
         let now: Vec<((i32, i32), Remembered)> = cloud
             .cells
             .iter()
@@ -146,9 +147,11 @@ impl RobotState {
                 return false;
             }
             cells.push(Cell { x: b.x as f32, y: b.y as f32, ..m.cell });
+            moving_mask.push(m.moving);
             true
         });
         self.memory.extend(now);
+        self.moving_mask = moving_mask;
         if let Some(seen) = &cloud.seen {
             self.recent.push_back(RecentView { stamp: input.stamp, pose: input.pose, seen: seen.clone() });
             while self.recent.front().is_some_and(|v| input.stamp - v.stamp > 4.0 * p.moving_lookback_s) {

@@ -14,6 +14,7 @@
 //! | `follow.rs` | path following: the chosen path's look-ahead point to (v, ω) |
 //! | `guard.rs` | the footprint guard every command passes |
 //! | `creep.rs` | a robot the guard stops creeps on toward the goal's side |
+//! | `behind.rs` | walkers who alone turn the paths far off are followed, not gone round |
 //! | `walkers.rs` | no command closes on a walking person; a way blocked near a person is WAITING |
 //! | `giveway.rs` | a robot that waited for a person backs away along its own trail |
 //! | `detour.rs` | a way beyond the paths' reach, searched on a rolling grid when stuck |
@@ -28,6 +29,7 @@
 //! stop short: stopping at the tolerance circle left every approach about
 //! 0.26 m short of the asked distance (docs/design.md §6).
 
+mod behind;
 mod creep;
 mod detour;
 mod follow;
@@ -115,6 +117,8 @@ pub struct RobotState {
     pub cloud: ObstacleCloud,
     /// How many of `cloud`'s cells this frame measured (the rest are remembered).
     measured_cells: usize,
+    /// Which of `cloud`'s cells were seen moving (`memory.rs`).
+    moving_mask: Vec<bool>,
     pub last_selection: Option<Selection>,
     /// The chosen path in odom, for the course it set.
     last_path_odom: Vec<Vector2<f64>>,

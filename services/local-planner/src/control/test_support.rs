@@ -1,9 +1,12 @@
 //! Inputs the behaviour modules' tests share.
 
+use std::sync::OnceLock;
+
 use vlnav_geometry::{GoalSpec, Pose2};
 
 use super::{RobotState, StepInput, View};
 use crate::cloud::{Cell, ObstacleCloud};
+use crate::planner::{Planner, PlannerParams};
 
 /// A level view ±0.75 rad wide that shows the floor everywhere.
 pub(super) fn view_ahead() -> View {
@@ -51,4 +54,10 @@ pub(super) fn drive_to(stamp: f64, pose: Pose2, goal_x: f64, cloud: &ObstacleClo
         max_speed: 0.0,
         view,
     }
+}
+
+/// The planner of the default parameters, built once for all tests.
+pub(super) fn planner() -> &'static Planner {
+    static P: OnceLock<Planner> = OnceLock::new();
+    P.get_or_init(|| Planner::new(PlannerParams::default()))
 }
