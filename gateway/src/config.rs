@@ -161,13 +161,18 @@ pub struct ExecutorParams {
     /// Frames to hold still and look after each scan turn.
     #[arg(long, default_value_t = 3)]
     pub look_frames: u32,
+    /// Scan turns to each side of the way ahead in the look after a search
+    /// leg (the way behind was looked at before the leg): the fan
+    /// `+1 … +n, −1 … −n` scan turns off the leg's heading.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=6))]
+    pub search_fan_turns: u32,
     /// Forward search legs after a fruitless look-around, before asking the
     /// user: a target too small to detect from here is looked for again
     /// from closer (docs/perception.md).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 4)]
     pub search_legs: u32,
     /// Length of one search leg, metres.
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 4.0)]
     pub search_leg_m: f64,
     /// A step blocked (or making no progress) this long asks the user, seconds.
     #[arg(long, default_value_t = 8.0)]
@@ -201,8 +206,9 @@ impl Default for ExecutorParams {
             scan_turn_rad: std::f64::consts::FRAC_PI_6,
             scan_turns: 12,
             look_frames: 3,
-            search_legs: 2,
-            search_leg_m: 2.0,
+            search_fan_turns: 2,
+            search_legs: 4,
+            search_leg_m: 4.0,
             stuck_timeout_s: 8.0,
             settle_after_s: 3.0,
             progress_timeout_s: 30.0,

@@ -46,16 +46,32 @@ pub(crate) fn search_leg(pose: Pose2, lead: Option<&Vector3<f64>>, d_s: f64, p: 
     MoveQuery { anchor: pose, f_dist, yaw: wrap(bearing(pose, t) - pose.theta), d_s: 0.0 }
 }
 
-/// Bounded exploration schedule: `scan_turns` turns per look-around, then a
-/// search leg, up to `search_legs` legs, each followed by a new look-around.
+/// Bounded exploration schedule: a look-around of `scan_turns` turns, then
+/// a search leg, up to `search_legs` legs, each followed by a fan of
+/// `2 · search_fan_turns` turns about the way ahead.
 pub(crate) fn after_look(turn: u32, leg: u32, p: &ExecutorParams) -> ExplorePlan {
-    if turn + 1 < p.scan_turns {
+    if turn + 1 < turns_of_look(leg, p) {
         ExplorePlan::Turn(turn + 1)
     } else if leg < p.search_legs {
         ExplorePlan::Search(leg + 1)
     } else {
         ExplorePlan::Ask
     }
+}
+
+/// Turns of the look after `leg` search legs: all around before the first
+/// leg; after a leg, the fan about the way ahead.
+fn turns_of_look(leg: u32, p: &ExecutorParams) -> u32 {
+    if leg == 0 { p.scan_turns } else { 2 * p.search_fan_turns }
+}
+
+/// Heading of turn `turn` (0-based) of the look after `leg` search legs,
+/// off the look's origin, rad: `turn + 1` scan turns on round all about;
+/// in a fan, `+1 … +n` scan turns, then `−1 … −n`.
+pub(crate) fn look_yaw(turn: u32, leg: u32, p: &ExecutorParams) -> f64 {
+    let n = p.search_fan_turns;
+    let k = if leg == 0 || turn < n { f64::from(turn + 1) } else { -f64::from(turn - n + 1) };
+    wrap(p.scan_turn_rad * k)
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -98,9 +114,10 @@ pub(super) enum ExploreGoalFor {
 }
 
 impl Mission {
-    /// Scan turn `turn` (0-based) of the look-around that began at `origin`.
-    fn turn_query(p: &ExecutorParams, origin: Pose2, turn: u32) -> MoveQuery {
-        MoveQuery { anchor: origin, f_dist: 0.0, yaw: wrap(p.scan_turn_rad * f64::from(turn + 1)), d_s: 0.0 }
+    /// Scan turn `turn` (0-based) of the look after `leg` search legs that
+    /// began at `origin`.
+    fn turn_query(p: &ExecutorParams, origin: Pose2, leg: u32, turn: u32) -> MoveQuery {
+        MoveQuery { anchor: origin, f_dist: 0.0, yaw: look_yaw(turn, leg, p), d_s: 0.0 }
     }
 
     /// The target is not in view and nothing is to be confirmed: the next
@@ -147,8 +164,9 @@ impl Mission {
                     }
                     (None, _) => pose,
                 };
+                f.search_heading.get_or_insert(origin.theta);
                 let what = ExploreGoalFor::Scan { leg: 0, origin, announce: true };
-                self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0)))
+                self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0, 0)))
             }
             Explore::Turn { goal, .. } | Explore::Search { goal, .. } => {
                 self.call(Pending::ExploreDriven(state), self.drive(goal))
@@ -160,10 +178,14 @@ impl Mission {
             Explore::Look { turn, leg, origin, .. } => match after_look(turn, leg, p) {
                 ExplorePlan::Turn(t) => {
                     let what = ExploreGoalFor::NextTurn { turn: t, leg, origin };
-                    self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, t)))
+                    self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, leg, t)))
                 }
                 ExplorePlan::Search(l) => {
-                    let query = search_leg(pose, f.fused.as_ref(), f.d_s, p);
+                    // Along the search's heading: a fan ends facing off
+                    // it, and a leg toward a lead, or round something,
+                    // ends facing elsewhere.
+                    let from = Pose2::new(pose.x, pose.y, f.search_heading.unwrap_or(origin.theta));
+                    let query = search_leg(from, f.fused.as_ref(), f.d_s, p);
                     tracing::debug!(leg = l, lead = ?f.fused, f_dist = query.f_dist, yaw = query.yaw, "search leg");
                     self.call(Pending::ExploreGoal(ExploreGoalFor::SearchLeg { leg: l }), Request::MoveGoal(query))
                 }
@@ -238,7 +260,7 @@ impl Mission {
                 if overdue || ended {
                     self.emit(Event::Exploring { index, phase: ExplorePhase::Scan, attempt: leg + 1 });
                     let what = ExploreGoalFor::Scan { leg, origin: pose, announce: false };
-                    return self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, pose, 0)));
+                    return self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, pose, leg, 0)));
                 }
                 (Explore::Search { goal, leg, since }, answer.cmd)
             }

@@ -26,12 +26,13 @@ fn an_unseen_target_is_searched_for_boundedly_then_asked_about() {
         }));
         frame += 1;
     }
-    // Three turns of a look-around from where it began, a 2 m search leg, three more turns.
+    // Three turns of a look-around from where it began, a search leg, then
+    // the fan about the way ahead: one and two turns left, one and two right.
     let turns_of_30: Vec<f64> = turns.iter().map(|q| q.yaw / FRAC_PI_6).collect();
-    for (got, want) in turns_of_30.iter().zip([1.0, 2.0, 3.0, 0.0, 1.0, 2.0, 3.0]) {
+    for (got, want) in turns_of_30.iter().zip([1.0, 2.0, 3.0, 0.0, 1.0, 2.0, -1.0, -2.0]) {
         assert!((got - want).abs() < 1e-9, "{turns_of_30:?}");
     }
-    assert_eq!(turns_of_30.len(), 7);
+    assert_eq!(turns_of_30.len(), 8);
     assert_eq!(turns[3].f_dist, p.search_leg_m);
     let kinds: Vec<String> = events(&mut m)
         .iter()
@@ -117,19 +118,65 @@ fn a_scan_turn_with_no_room_to_turn_looks_at_once_and_the_search_ends_in_a_quest
 
 #[test]
 fn exploration_is_bounded_scan_then_search_then_ask() {
-    let p = ExecutorParams { scan_turns: 3, search_legs: 1, ..Default::default() };
+    let p = ExecutorParams { scan_turns: 3, search_legs: 1, search_fan_turns: 1, ..Default::default() };
     assert_eq!(after_look(0, 0, &p), ExplorePlan::Turn(1));
     assert_eq!(after_look(1, 0, &p), ExplorePlan::Turn(2));
     assert_eq!(after_look(2, 0, &p), ExplorePlan::Search(1));
+    // After a leg, the fan: one turn each side.
     assert_eq!(after_look(0, 1, &p), ExplorePlan::Turn(1));
-    assert_eq!(after_look(2, 1, &p), ExplorePlan::Ask);
+    assert_eq!(after_look(1, 1, &p), ExplorePlan::Ask);
+}
+
+#[test]
+fn the_look_after_a_search_leg_fans_about_the_way_ahead_and_the_next_leg_keeps_it() {
+    // Before the first leg, all around; after one, the way ahead only:
+    // what lies behind was looked at before the leg.
+    let p = ExecutorParams::default();
+    let all: Vec<f64> = (0..p.scan_turns).map(|t| look_yaw(t, 0, &p)).collect();
+    assert!((all[0] - FRAC_PI_6).abs() < 1e-9 && all[p.scan_turns as usize - 1].abs() < 1e-9, "{all:?}");
+    let fan: Vec<f64> = (0..2 * p.search_fan_turns).map(|t| look_yaw(t, 1, &p) / FRAC_PI_6).collect();
+    assert_eq!(fan.iter().map(|k| k.round() as i32).collect::<Vec<_>>(), vec![1, 2, -1, -2]);
+    // Scripted: a target never seen, every turn and leg reached at once,
+    // each leg ending facing a radian left of where it set off (round
+    // something). Every leg sets off along the search's heading, the first
+    // look's origin, not where the last leg or the fan ended facing.
+    let p = ExecutorParams { unseen_frames: 2, look_frames: 1, search_legs: 2, ..Default::default() };
+    let mut m = mission(vec![find(1, "bicycle")]);
+    let mut heading = 0.0;
+    let mut legs = Vec::new();
+    let mut frame = 0;
+    while !m.is_awaiting() {
+        assert!(frame < 400, "exploration is bounded");
+        let (_, asked) = cycle(
+            &mut m,
+            &p,
+            at(f64::from(frame) * 0.2, 0.0, 0.0, heading),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        for q in asked.into_iter().filter_map(|r| match r {
+            Request::MoveGoal(q) => Some(q),
+            _ => None,
+        }) {
+            if q.f_dist > 0.0 {
+                legs.push(wrap(q.anchor.theta + q.yaw));
+                heading = wrap(q.anchor.theta + q.yaw + 1.0);
+            } else {
+                // The robot turns to each scan heading at once.
+                heading = wrap(q.anchor.theta + q.yaw);
+            }
+        }
+        frame += 1;
+    }
+    assert_eq!(legs.len(), 2, "{legs:?}");
+    assert!(legs.iter().all(|h| h.abs() < 1e-9), "every leg along the search's heading: {legs:?}");
 }
 
 #[test]
 fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
     // One glimpse of a chair 8 m away, 30° to the left, never confirmed:
     // after the look-around the search leg goes toward it, half the way to
-    // the stopping distance; with no glimpse, straight ahead.
+    // the stopping distance but at least a leg's length; with no glimpse,
+    // straight ahead.
     let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
     let glimpse = Vector3::new(8.0 * FRAC_PI_6.cos(), 8.0 * FRAC_PI_6.sin(), 0.5);
     let mut m = mission(vec![find(56, "chair")]);
@@ -152,7 +199,8 @@ fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
     }
     assert_eq!(legs.len(), 1, "{legs:?}");
     assert!((legs[0].yaw - FRAC_PI_6).abs() < 1e-9, "{:?}", legs[0]);
-    assert!((legs[0].f_dist - (8.0 - p.default_d_s) / 2.0).abs() < 1e-9, "{:?}", legs[0]);
+    let room = 8.0 - p.default_d_s;
+    assert!((legs[0].f_dist - (room / 2.0).max(p.search_leg_m).min(room)).abs() < 1e-9, "{:?}", legs[0]);
 
     let pose = Pose2::new(1.0, 2.0, FRAC_PI_2);
     assert_eq!(search_leg(pose, None, 1.5, &p), MoveQuery { anchor: pose, f_dist: p.search_leg_m, yaw: 0.0, d_s: 0.0 });

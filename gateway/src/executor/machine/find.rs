@@ -86,6 +86,11 @@ pub(super) struct FindRun {
     pub(super) velocity_from: Option<(f64, Vector3<f64>)>,
     pub(super) follow_until: Option<f64>,
     pub(super) explore: Explore,
+    /// The heading the exploration searches along, the first look-around's
+    /// origin (the route's course, where the robot came from a MOVE): a
+    /// search leg with no lead goes that way, wherever the last leg ended
+    /// facing.
+    pub(super) search_heading: Option<f64>,
 }
 
 impl FindRun {

@@ -66,7 +66,9 @@ fn a_target_an_earlier_step_saw_is_looked_for_there_first() {
     let (q, events) = plant_step_after_the_chair(6);
     let bearing = (-2.25f64).atan2(4.3);
     assert!((q.yaw - bearing).abs() < 0.05, "{q:?} toward {bearing}");
-    assert!((q.f_dist - ExecutorParams::default().search_leg_m).abs() < 1e-9, "{q:?}");
+    let room = 4.3f64.hypot(2.25) - ExecutorParams::default().default_d_s;
+    let leg = (room / 2.0).max(ExecutorParams::default().search_leg_m).min(room);
+    assert!((q.f_dist - leg).abs() < 1e-9, "{q:?}");
     assert!(
         events.iter().any(|e| matches!(e, Event::Exploring { phase: ExplorePhase::Revisit, attempt: 1, .. })),
         "{events:?}"

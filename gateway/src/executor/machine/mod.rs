@@ -40,8 +40,9 @@
 //!   pose), not the one nearest last frame's box: a turning robot shifts the
 //!   image by tens of pixels a frame, and a second chair swinging into view
 //!   must not take the first one's place. Unseen for `unseen_frames` → bounded
-//!   exploration (scan: turn 30°, look; then search legs, toward the last
-//!   unconfirmed sighting if there was one) → a question
+//!   exploration (scan: turn 30°, look, all around; then search legs, toward the last
+//!   unconfirmed sighting if there was one, each followed by a fan of looks
+//!   about the way ahead; docs/perception.md) → a question
 //!   to the user → the user's answer → the planner revises the remaining plan.
 //!   A target described by another object ("the chair next to the table",
 //!   the step's `reference`): while it is unconfirmed, the instance whose
@@ -545,6 +546,7 @@ impl Mission {
                 velocity_from: None,
                 follow_until: None,
                 explore: Explore::Idle,
+                search_heading: None,
             })),
         };
         let index = self.index as u32;
