@@ -35,6 +35,13 @@ pub fn valid_robot_id(id: &str) -> bool {
     !id.is_empty() && id.len() <= 64 && id.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
 }
 
+fn check_robot_id(robot_id: &str) -> anyhow::Result<()> {
+    if !valid_robot_id(robot_id) {
+        anyhow::bail!("robot id {robot_id:?}: use 1–64 letters, digits, '-', '_' or '.' for a certificate identity");
+    }
+    Ok(())
+}
+
 /// TLS of a server. With a certificate and key the server speaks only TLS;
 /// with a client CA as well it asks callers for a certificate that CA
 /// signed (mutual TLS). The certificate, the key and the revocation list are
@@ -328,7 +335,7 @@ pub fn robot_ids_of_peer(certs: &[impl AsRef<[u8]>]) -> Vec<String> {
 }
 
 /// A development PKI in one directory: a CA, a server certificate valid for
-/// loopback, the gateway's client
+/// loopback (and the names [`DevPki::ensure_named`] adds), the gateway's client
 /// certificate and one certificate per robot. Made on first use, reused
 /// after; keys are written owner-only.
 #[derive(Clone, Debug)]
@@ -351,14 +358,37 @@ impl DevPki {
     /// certificates if absent, and a certificate for each of `robots` that
     /// has none yet.
     pub fn ensure(dir: &Path, robots: &[&str]) -> anyhow::Result<Self> {
+        Self::ensure_named(dir, robots, &[])
+    }
+
+    /// As [`DevPki::ensure`], with a server certificate that also names
+    /// `server_names` (DNS names or IP addresses a robot or client on the
+    /// network dials the gateway by). A server certificate that lacks one
+    /// of them, or any of the loopback names, is issued again from the same
+    /// CA, naming the loopback names and `server_names`.
+    pub fn ensure_named(dir: &Path, robots: &[&str], server_names: &[String]) -> anyhow::Result<Self> {
+        for name in server_names {
+            check_server_name(name)?;
+        }
         let pki = Self::ensure_ca(dir)?;
-        if !pki.server_cert().exists() {
-            let mut sans: Vec<rcgen::SanType> = DEV_SERVER_NAMES
-                .iter()
-                .map(|n| Ok(rcgen::SanType::DnsName((*n).try_into()?)))
-                .collect::<Result<_, rcgen::Error>>()?;
-            sans.push(rcgen::SanType::IpAddress(IpAddr::V4(Ipv4Addr::LOCALHOST)));
-            sans.push(rcgen::SanType::IpAddress(IpAddr::V6(Ipv6Addr::LOCALHOST)));
+        let mut wanted: Vec<String> = DEV_SERVER_NAMES.iter().map(|n| n.to_string()).collect();
+        wanted.extend([Ipv4Addr::LOCALHOST.to_string(), Ipv6Addr::LOCALHOST.to_string()]);
+        for name in server_names {
+            if !wanted.iter().any(|w| same_server_name(w, name)) {
+                wanted.push(name.clone());
+            }
+        }
+        let held = pki.server_names();
+        let missing: Vec<&String> = wanted.iter().filter(|w| !held.iter().any(|h| same_server_name(h, w))).collect();
+        if !missing.is_empty() {
+            if pki.server_cert().exists() {
+                tracing::info!(
+                    cert = %pki.server_cert().display(),
+                    ?missing,
+                    "the server certificate does not name every requested name: issuing it again from the same CA"
+                );
+            }
+            let mut sans: Vec<rcgen::SanType> = wanted.iter().map(|n| server_san(n)).collect::<anyhow::Result<_>>()?;
             sans.push(rcgen::SanType::URI(service_identity("server").try_into()?));
             pki.issue("vlnav server", sans, &pki.server_cert(), &pki.server_key())?;
         }
@@ -368,6 +398,58 @@ impl DevPki {
         }
         for robot in robots {
             pki.ensure_robot(robot)?;
+        }
+        Ok(pki)
+    }
+
+    /// The DNS names and IP addresses the server certificate is valid for;
+    /// empty when there is none or it cannot be read.
+    pub fn server_names(&self) -> Vec<String> {
+        std::fs::read(self.server_cert())
+            .ok()
+            .and_then(|pem| pem_to_der(&pem))
+            .map(|der| server_names(&der))
+            .unwrap_or_default()
+    }
+
+    /// Opens an existing CA in `dir` to issue certificates from, creating
+    /// nothing: `ca.pem` must be a CA certificate, valid now, and
+    /// `ca-key.pem` its private key. The error names the file at fault.
+    pub fn open_ca(dir: &Path) -> anyhow::Result<Self> {
+        let pki = Self { dir: dir.to_path_buf() };
+        let (ca, ca_key) = (pki.ca(), pki.ca_key());
+        if !dir.is_dir() {
+            anyhow::bail!("{} is not a directory", dir.display());
+        }
+        for f in [&ca, &ca_key] {
+            if !f.exists() {
+                anyhow::bail!("{} holds no CA: {} is missing", dir.display(), f.display());
+            }
+        }
+        let pem = read_pem(&ca)?;
+        let der = pem_to_der(&pem).with_context(|| format!("{} is not a PEM certificate", ca.display()))?;
+        let (_, cert) = x509_parser::parse_x509_certificate(&der)
+            .map_err(|e| anyhow::anyhow!("{} is not an X.509 certificate: {e}", ca.display()))?;
+        if !cert.is_ca() {
+            anyhow::bail!("{} is not a CA certificate (no CA basic constraint)", ca.display());
+        }
+        if !cert.validity().is_valid() {
+            anyhow::bail!(
+                "the CA {} is valid from {} to {}, not now: make a new CA (certificates it signed must then be issued again)",
+                ca.display(),
+                cert.validity().not_before,
+                cert.validity().not_after
+            );
+        }
+        let key_text = std::fs::read_to_string(&ca_key).with_context(|| format!("cannot read {}", ca_key.display()))?;
+        let key = rcgen::KeyPair::from_pem(&key_text)
+            .map_err(|e| anyhow::anyhow!("{} is not a private key: {e}", ca_key.display()))?;
+        if cert.public_key().subject_public_key.data.as_ref() != key.public_key_raw() {
+            anyhow::bail!(
+                "{} is not the key of {}: the two files come from different CAs",
+                ca_key.display(),
+                ca.display()
+            );
         }
         Ok(pki)
     }
@@ -403,21 +485,20 @@ impl DevPki {
 
     /// Issues robot `robot_id`'s certificate unless it exists.
     pub fn ensure_robot(&self, robot_id: &str) -> anyhow::Result<()> {
-        if !valid_robot_id(robot_id) {
-            anyhow::bail!(
-                "robot id {robot_id:?}: use 1–64 letters, digits, '-', '_' or '.' for a certificate identity"
-            );
-        }
+        check_robot_id(robot_id)?;
         if !self.robot_cert(robot_id).exists() {
-            let sans = vec![rcgen::SanType::URI(robot_identity(robot_id).try_into()?)];
-            self.issue(
-                &format!("vlnav robot {robot_id}"),
-                sans,
-                &self.robot_cert(robot_id),
-                &self.robot_key(robot_id),
-            )?;
+            self.issue_robot(robot_id, &self.robot_cert(robot_id), &self.robot_key(robot_id))?;
         }
         Ok(())
+    }
+
+    /// Issues a new certificate for robot `robot_id` (URI SAN
+    /// `spiffe://vlnav/robot/<robot_id>`, valid as a client), written to
+    /// `cert_path` / `key_path`; nothing else is written.
+    pub fn issue_robot(&self, robot_id: &str, cert_path: &Path, key_path: &Path) -> anyhow::Result<()> {
+        check_robot_id(robot_id)?;
+        let sans = vec![rcgen::SanType::URI(robot_identity(robot_id).try_into()?)];
+        self.issue(&format!("vlnav robot {robot_id}"), sans, cert_path, key_path)
     }
 
     /// Issues a certificate for service `component` (URI SAN
@@ -432,19 +513,19 @@ impl DevPki {
     ) -> anyhow::Result<()> {
         let mut sans: Vec<rcgen::SanType> = dns_names
             .iter()
-            .map(|n| match n.parse::<IpAddr>() {
-                Ok(ip) => Ok(rcgen::SanType::IpAddress(ip)),
-                Err(_) => Ok(rcgen::SanType::DnsName(n.as_str().try_into()?)),
-            })
-            .collect::<Result<_, rcgen::Error>>()
+            .map(|n| server_san(n))
+            .collect::<anyhow::Result<_>>()
             .with_context(|| format!("{component}: a name in {dns_names:?} is not a valid DNS name"))?;
         sans.push(rcgen::SanType::URI(service_identity(component).try_into()?));
         self.issue(&format!("vlnav {component}"), sans, cert_path, key_path)
     }
 
     fn issue(&self, name: &str, sans: Vec<rcgen::SanType>, cert_path: &Path, key_path: &Path) -> anyhow::Result<()> {
-        let ca_key = rcgen::KeyPair::from_pem(&std::fs::read_to_string(self.ca_key())?)?;
-        let issuer = rcgen::Issuer::from_ca_cert_pem(&std::fs::read_to_string(self.ca())?, ca_key)?;
+        let read = |p: PathBuf| std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()));
+        let ca_key = rcgen::KeyPair::from_pem(&read(self.ca_key())?)
+            .with_context(|| format!("{} is not a private key", self.ca_key().display()))?;
+        let issuer = rcgen::Issuer::from_ca_cert_pem(&read(self.ca())?, ca_key)
+            .with_context(|| format!("{} is not a CA certificate", self.ca().display()))?;
         let key = rcgen::KeyPair::generate()?;
         let mut params = rcgen::CertificateParams::new(Vec::<String>::new())?;
         params.distinguished_name.push(rcgen::DnType::CommonName, name);
@@ -506,6 +587,57 @@ impl DevPki {
     }
 }
 
+/// The subject-alternative name of a server name: an IP address or a DNS name.
+fn server_san(name: &str) -> anyhow::Result<rcgen::SanType> {
+    Ok(match name.parse::<IpAddr>() {
+        Ok(ip) => rcgen::SanType::IpAddress(ip),
+        Err(_) => rcgen::SanType::DnsName(name.try_into()?),
+    })
+}
+
+/// Whether two server names are the same: equal addresses, or DNS names
+/// equal but for case.
+pub fn same_server_name(a: &str, b: &str) -> bool {
+    match (a.parse::<IpAddr>(), b.parse::<IpAddr>()) {
+        (Ok(x), Ok(y)) => x == y,
+        (Err(_), Err(_)) => a.eq_ignore_ascii_case(b),
+        _ => false,
+    }
+}
+
+/// Whether `name` can be a name a client dials a server by, in its
+/// certificate: an IP address other than the unspecified ones, or a DNS
+/// name (letters, digits and '-' in dot-separated labels of 1–63, 253 in
+/// all). The error says what is wrong.
+pub fn check_server_name(name: &str) -> anyhow::Result<()> {
+    if let Ok(ip) = name.parse::<IpAddr>() {
+        if ip.is_unspecified() {
+            anyhow::bail!(
+                "{name:?} is where a server listens on every address, not one a client dials: give this machine's address or DNS name"
+            );
+        }
+        return Ok(());
+    }
+    if name.contains("://") || name.contains(':') || name.contains('/') {
+        anyhow::bail!(
+            "{name:?}: give a DNS name or an IP address alone, without a scheme or a port (e.g. 192.168.1.20 or gateway.lab.example)"
+        );
+    }
+    let label_ok = |l: &str| {
+        !l.is_empty()
+            && l.len() <= 63
+            && !l.starts_with('-')
+            && !l.ends_with('-')
+            && l.chars().all(|c| c.is_ascii_alphanumeric() || c == '-')
+    };
+    if name.is_empty() || name.len() > 253 || !name.split('.').all(label_ok) {
+        anyhow::bail!(
+            "{name:?} is neither an IP address nor a DNS name (dot-separated labels of 1–63 letters, digits or '-', not starting or ending with '-')"
+        );
+    }
+    Ok(())
+}
+
 fn validity(params: &mut rcgen::CertificateParams) {
     let now = time::OffsetDateTime::now_utc();
     params.not_before = now - time::Duration::hours(1);
@@ -556,6 +688,104 @@ mod tests {
         assert_eq!(std::fs::read(again.ca()).unwrap(), ca_before, "the CA is reused");
         assert!(again.robot_cert("husky-2").exists());
         assert!(DevPki::ensure(dir.path(), &["../etc"]).is_err(), "a robot id is no path");
+    }
+
+    #[test]
+    fn extra_server_names_reissue_the_server_certificate_from_the_same_ca_only_when_missing() {
+        let dir = tempfile::tempdir().unwrap();
+        let pki = DevPki::ensure(dir.path(), &["husky-1"]).unwrap();
+        let mut names = pki.server_names();
+        names.sort();
+        assert_eq!(names, ["127.0.0.1", "::1", "localhost"]);
+        let (ca, robot) = (std::fs::read(pki.ca()).unwrap(), std::fs::read(pki.robot_cert("husky-1")).unwrap());
+        let before = std::fs::read(pki.server_cert()).unwrap();
+
+        let extra = vec!["192.168.1.20".to_string(), "Gateway.Lab.example".to_string()];
+        let pki = DevPki::ensure_named(dir.path(), &[], &extra).unwrap();
+        let after = std::fs::read(pki.server_cert()).unwrap();
+        assert_ne!(after, before, "a certificate lacking a requested name is issued again");
+        let names = pki.server_names();
+        for n in ["localhost", "127.0.0.1", "::1", "192.168.1.20", "Gateway.Lab.example"] {
+            assert!(names.iter().any(|x| x == n), "{n} missing from {names:?}");
+        }
+        assert_eq!(std::fs::read(pki.ca()).unwrap(), ca, "the same CA");
+        assert_eq!(std::fs::read(pki.robot_cert("husky-1")).unwrap(), robot, "robots' certificates are kept");
+        let issuer = |pem: &[u8]| {
+            let der = pem_to_der(pem).unwrap();
+            let (_, c) = x509_parser::parse_x509_certificate(&der).unwrap();
+            c.issuer().to_string()
+        };
+        assert_eq!(issuer(&after), issuer(&ca), "signed by the CA");
+
+        // Names it already carries (any case, any spelling of the address): kept as it is.
+        let again = DevPki::ensure_named(dir.path(), &[], &["gateway.lab.EXAMPLE".into(), "::0:1".into()]).unwrap();
+        assert_eq!(std::fs::read(again.server_cert()).unwrap(), after);
+        DevPki::ensure(dir.path(), &[]).unwrap();
+        assert_eq!(std::fs::read(again.server_cert()).unwrap(), after, "no names asked: kept");
+        DevPki::ensure_named(dir.path(), &[], &["10.0.0.7".into()]).unwrap();
+        assert!(again.server_names().contains(&"10.0.0.7".to_string()));
+
+        for (bad, says) in [
+            ("0.0.0.0", "listens on every address"),
+            ("::", "listens on every address"),
+            ("https://10.0.0.7:50051", "without a scheme or a port"),
+            ("gw.example:50051", "without a scheme or a port"),
+            ("", "neither an IP address nor a DNS name"),
+            ("-gw.example", "neither an IP address nor a DNS name"),
+            ("gw..example", "neither an IP address nor a DNS name"),
+            ("gw_1.example", "neither an IP address nor a DNS name"),
+        ] {
+            let e = DevPki::ensure_named(dir.path(), &[], &[bad.to_string()]).unwrap_err().to_string();
+            assert!(e.contains(says), "{bad:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn a_robot_certificate_is_issued_from_an_existing_ca_and_nothing_else_is_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = DevPki::open_ca(&dir.path().join("none")).unwrap_err().to_string();
+        assert!(e.contains("is not a directory"), "{e}");
+        let e = DevPki::open_ca(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("holds no CA") && e.contains("ca.pem is missing"), "{e}");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "no CA is created");
+
+        let pki = DevPki::ensure(dir.path(), &[]).unwrap();
+        let listing = || {
+            let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir.path())
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read(&p).unwrap()))
+                .collect();
+            v.sort();
+            v
+        };
+        let before = listing();
+        let out = tempfile::tempdir().unwrap();
+        let (cert, key) = (out.path().join("r.pem"), out.path().join("r-key.pem"));
+        let ca = DevPki::open_ca(dir.path()).unwrap();
+        assert!(ca.issue_robot("../x", &cert, &key).unwrap_err().to_string().contains("robot id \"../x\""));
+        ca.issue_robot("husky-7", &cert, &key).unwrap();
+        assert_eq!(listing(), before, "the CA's directory is untouched");
+        let der = pem_der(&std::fs::read_to_string(&cert).unwrap());
+        assert_eq!(robot_ids_of_peer(&[der]), vec!["husky-7".to_string()]);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt as _;
+            assert_eq!(std::fs::metadata(&key).unwrap().permissions().mode() & 0o777, 0o600);
+        }
+
+        // A key of another CA, a certificate that is no CA, a file that is no PEM.
+        let other = tempfile::tempdir().unwrap();
+        let other = DevPki::ensure(other.path(), &[]).unwrap();
+        std::fs::copy(other.ca_key(), pki.ca_key()).unwrap();
+        let e = DevPki::open_ca(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("is not the key of") && e.contains("different CAs"), "{e}");
+        std::fs::copy(other.server_cert(), pki.ca()).unwrap();
+        let e = DevPki::open_ca(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("is not a CA certificate"), "{e}");
+        std::fs::write(pki.ca(), "hello").unwrap();
+        let e = DevPki::open_ca(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("is not PEM"), "{e}");
     }
 
     #[test]

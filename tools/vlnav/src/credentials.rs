@@ -7,6 +7,10 @@
 //! `vlnav credentials revoke`: adds robots, components or single
 //! certificates to the revocation list beside the CA, which servers read
 //! again within a second (`vlnav_runtime::revocation`).
+//!
+//! `vlnav credentials robot`: one more robot's certificate from an existing
+//! CA (`vlnav up`'s or `vlnav credentials k8s`'), and the `vlnav-edge` flags
+//! that use it.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -58,6 +62,128 @@ pub struct RevokeArgs {
     /// DIR/revoked.toml.
     #[arg(long, default_value = ".vlnav/security")]
     pub dir: PathBuf,
+}
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct RobotCredentialsArgs {
+    /// The robot's id: its certificate names spiffe://vlnav/robot/<ID>, the
+    /// identity the gateway admits for `vlnav-edge --robot-id ID`.
+    #[arg(long, value_name = "ID")]
+    pub id: String,
+    /// The directory of the CA to issue from (`ca.pem`, `ca-key.pem`):
+    /// `.vlnav/security` of `vlnav up`, or the --out of `vlnav credentials
+    /// k8s`. Nothing else in it is read or written.
+    #[arg(long, value_name = "DIR", default_value = ".vlnav/security")]
+    pub ca_dir: PathBuf,
+    /// Where to write robot-<ID>.pem, robot-<ID>-key.pem and a copy of
+    /// ca.pem (created): the directory to copy to the robot's computer.
+    /// Default: the CA's directory, where only the robot's two files are
+    /// written. A new certificate and key each time; an older one stays
+    /// valid until it expires or is revoked.
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// The gateway's address as the robot dials it (`https://HOST:PORT`),
+    /// for the printed command; HOST is checked against the gateway's
+    /// certificate in the CA's directory when there is one.
+    #[arg(long, value_name = "URL")]
+    pub gateway: Option<String>,
+}
+
+/// The files of one robot's credentials, as [`issue_robot`] wrote them.
+#[derive(Clone, Debug)]
+pub struct RobotCredentials {
+    pub ca: PathBuf,
+    pub cert: PathBuf,
+    pub key: PathBuf,
+}
+
+/// Issues robot `args.id`'s certificate from the CA in `args.ca_dir`; returns
+/// the files and what to tell people: where they are, the `vlnav-edge`
+/// flags, and a warning when the gateway's certificate does not name the
+/// host the robot dials.
+pub fn issue_robot(args: &RobotCredentialsArgs) -> anyhow::Result<(RobotCredentials, String)> {
+    use vlnav_runtime::security::valid_robot_id;
+    if !valid_robot_id(&args.id) {
+        anyhow::bail!("--id {:?}: a robot id is 1–64 letters, digits, '-', '_' or '.'", args.id);
+    }
+    let gateway = args.gateway.clone().unwrap_or_else(|| "https://$GATEWAY_HOST:50051".into());
+    let host = gateway_host(&gateway)?;
+    let pki = DevPki::open_ca(&args.ca_dir).with_context(|| {
+        format!(
+            "--ca-dir {}: give the directory of an existing CA, `.vlnav/security` of `vlnav up` (made on its first start) or the --out of `vlnav credentials k8s`",
+            args.ca_dir.display()
+        )
+    })?;
+    let out = args.out.clone().unwrap_or_else(|| args.ca_dir.clone());
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let same_dir = std::fs::canonicalize(&out)? == std::fs::canonicalize(&args.ca_dir)?;
+    if !same_dir && out.join("ca-key.pem").exists() {
+        anyhow::bail!(
+            "--out {} holds another CA (ca-key.pem): give an empty or new directory for the robot's files",
+            out.display()
+        );
+    }
+    let files = RobotCredentials {
+        ca: if same_dir { pki.ca() } else { out.join("ca.pem") },
+        cert: out.join(format!("robot-{}.pem", args.id)),
+        key: out.join(format!("robot-{}-key.pem", args.id)),
+    };
+    pki.issue_robot(&args.id, &files.cert, &files.key)?;
+    if !same_dir {
+        std::fs::copy(pki.ca(), &files.ca).with_context(|| format!("cannot write {}", files.ca.display()))?;
+    }
+    let mut report = format!(
+        "issued robot {id}'s certificate (spiffe://vlnav/robot/{id}, valid {days} days) from the CA in {ca_dir}:\n  \
+         {ca}, {cert}, {key} (the key: owner-only, for the robot's computer alone)\n\
+         on the robot's computer, with these files:\n  \
+         vlnav-edge --robot-id {id} --gateway {gateway} \\\n    \
+         --tls-ca {ca} --tls-client-cert {cert} --tls-client-key {key} \\\n    \
+         --driver ros2 --ros-namespace <namespace>    (ROS 1: --driver ros1)",
+        id = args.id,
+        days = vlnav_runtime::security::DEV_CERT_DAYS,
+        ca_dir = args.ca_dir.display(),
+        ca = files.ca.display(),
+        cert = files.cert.display(),
+        key = files.key.display(),
+    );
+    if let Some(host) = host {
+        for gw_cert in [pki.server_cert(), args.ca_dir.join("components/gateway.pem")] {
+            let Some(der) = std::fs::read(&gw_cert).ok().and_then(|p| vlnav_runtime::security::pem_to_der(&p)) else {
+                continue;
+            };
+            let names = vlnav_runtime::security::server_names(&der);
+            if !names.iter().any(|n| vlnav_runtime::security::same_server_name(n, &host)) {
+                let _ = write!(
+                    report,
+                    "\nwarning: the gateway's certificate {} names {} but not {host}, so the robot will refuse it: \
+                     start the gateway with `vlnav up --gateway-name {host}` (a cluster: `vlnav credentials k8s --gateway-name {host}`)",
+                    gw_cert.display(),
+                    names.join(", ")
+                );
+            }
+        }
+    }
+    Ok((files, report))
+}
+
+/// The host of a gateway address `https://HOST[:PORT]`, `None` for a
+/// placeholder (`$GATEWAY_HOST`); an address without `https://` is refused.
+fn gateway_host(gateway: &str) -> anyhow::Result<Option<String>> {
+    let Some(rest) = gateway.strip_prefix("https://") else {
+        anyhow::bail!(
+            "--gateway {gateway:?}: give it as https://HOST:PORT; the gateway serves TLS and the edge agent refuses anything else once it has a CA"
+        );
+    };
+    let authority = rest.split('/').next().unwrap_or_default();
+    let host = match authority.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or_default(),
+        None => authority.rsplit_once(':').map_or(authority, |(h, _)| h),
+    };
+    if host.starts_with('$') {
+        return Ok(None);
+    }
+    vlnav_runtime::security::check_server_name(host).with_context(|| format!("--gateway {gateway:?}"))?;
+    Ok(Some(host.to_string()))
 }
 
 /// Adds what `args` names to the revocation list; returns what was done, for
@@ -266,6 +392,96 @@ mod tests {
         assert!(list.entries.iter().all(|e| e.reason == "lost" && e.revoked_unix.is_some()));
         let husky2 = vlnav_runtime::revocation::CertificateId::of_pem_file(&pki.robot_cert("husky-2")).unwrap();
         assert!(list.revokes(&husky2).unwrap().contains("certificate is revoked (lost)"));
+    }
+
+    #[test]
+    fn a_robot_certificate_comes_from_the_existing_ca_and_touches_nothing_else_there() {
+        let home = tempfile::tempdir().unwrap();
+        let ca_dir = home.path().join("security");
+        let args = |f: &dyn Fn(&mut RobotCredentialsArgs)| {
+            let mut a = RobotCredentialsArgs { id: "husky-2".into(), ca_dir: ca_dir.clone(), out: None, gateway: None };
+            f(&mut a);
+            a
+        };
+        let e = format!("{:#}", issue_robot(&args(&|_| {})).unwrap_err());
+        assert!(
+            e.contains("--ca-dir")
+                && e.contains("give the directory of an existing CA")
+                && e.contains("is not a directory"),
+            "{e}"
+        );
+        assert!(!ca_dir.exists(), "no CA is made");
+        let pki = DevPki::ensure(&ca_dir, &["husky-1"]).unwrap();
+        let e = issue_robot(&args(&|a| a.id = "../husky".into())).unwrap_err().to_string();
+        assert!(e.contains("--id \"../husky\""), "{e}");
+        let e = issue_robot(&args(&|a| a.gateway = Some("http://10.0.0.7:50051".into()))).unwrap_err().to_string();
+        assert!(e.contains("https://HOST:PORT"), "{e}");
+        let snapshot = |dir: &Path| {
+            let mut v: Vec<(String, Vec<u8>)> = std::fs::read_dir(dir)
+                .unwrap()
+                .map(|e| e.unwrap().path())
+                .filter(|p| p.is_file())
+                .map(|p| (p.file_name().unwrap().to_string_lossy().into_owned(), std::fs::read(&p).unwrap()))
+                .collect();
+            v.sort();
+            v
+        };
+        let before = snapshot(&ca_dir);
+
+        // Into a directory to copy to the robot: the CA's directory is untouched.
+        let out = home.path().join("robot-husky-2");
+        let (files, report) = issue_robot(&args(&|a| {
+            a.out = Some(out.clone());
+            a.gateway = Some("https://10.0.0.7:50051".into());
+        }))
+        .unwrap();
+        assert_eq!(snapshot(&ca_dir), before, "nothing in the CA's directory changed");
+        assert_eq!(std::fs::read(&files.ca).unwrap(), std::fs::read(pki.ca()).unwrap());
+        let der = vlnav_runtime::security::pem_to_der(&std::fs::read(&files.cert).unwrap()).unwrap();
+        assert_eq!(vlnav_runtime::security::robot_ids_of_peer(&[der]), vec!["husky-2".to_string()]);
+        let flags = format!(
+            "--tls-ca {} --tls-client-cert {} --tls-client-key {}",
+            out.join("ca.pem").display(),
+            out.join("robot-husky-2.pem").display(),
+            out.join("robot-husky-2-key.pem").display()
+        );
+        assert!(report.contains(&flags), "{report}");
+        assert!(report.contains("--robot-id husky-2 --gateway https://10.0.0.7:50051"), "{report}");
+        assert!(
+            report.contains("warning: the gateway's certificate") && report.contains("--gateway-name 10.0.0.7"),
+            "{report}"
+        );
+
+        // Into the CA's directory: only the robot's two files are written.
+        DevPki::ensure_named(&ca_dir, &[], &["10.0.0.7".into()]).unwrap();
+        let before = snapshot(&ca_dir);
+        let (files, report) = issue_robot(&args(&|a| a.gateway = Some("https://10.0.0.7:50051".into()))).unwrap();
+        assert!(!report.contains("warning"), "{report}");
+        assert_eq!(files.ca, pki.ca());
+        let after = snapshot(&ca_dir);
+        let changed: Vec<&String> = after.iter().filter(|f| !before.contains(f)).map(|(n, _)| n).collect();
+        assert_eq!(changed, ["robot-husky-2-key.pem", "robot-husky-2.pem"]);
+        assert_eq!(after.len(), before.len() + 2);
+
+        // An --out holding another CA is refused; so is a CA whose key is not its own.
+        let e = issue_robot(&args(&|a| a.out = Some(home.path().join("other")))).map(|_| ());
+        assert!(e.is_ok());
+        DevPki::ensure_ca(&home.path().join("other")).unwrap();
+        let e = issue_robot(&args(&|a| a.out = Some(home.path().join("other")))).unwrap_err().to_string();
+        assert!(e.contains("holds another CA"), "{e}");
+        std::fs::copy(home.path().join("other/ca-key.pem"), pki.ca_key()).unwrap();
+        let e = format!("{:#}", issue_robot(&args(&|_| {})).unwrap_err());
+        assert!(e.contains("is not the key of"), "{e}");
+    }
+
+    #[test]
+    fn the_gateway_address_must_be_https_and_its_host_a_name() {
+        assert_eq!(gateway_host("https://10.0.0.7:50051").unwrap().as_deref(), Some("10.0.0.7"));
+        assert_eq!(gateway_host("https://[fd00::7]:50051").unwrap().as_deref(), Some("fd00::7"));
+        assert_eq!(gateway_host("https://gw.lab.example").unwrap().as_deref(), Some("gw.lab.example"));
+        assert_eq!(gateway_host("https://$GATEWAY_HOST:50051").unwrap(), None);
+        assert!(gateway_host("10.0.0.7:50051").is_err());
+        assert!(gateway_host("https://0.0.0.0:50051").is_err());
     }
 
     #[test]

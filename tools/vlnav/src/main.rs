@@ -15,6 +15,9 @@ enum CredentialsCmd {
     /// Certificates (one CA, one per component, one per robot) and tokens
     /// for k8s/base, as Secrets in a kustomization (docs/security.md).
     K8s(vlnav::credentials::K8sCredentialsArgs),
+    /// One robot's certificate and key from an existing CA (`vlnav up`'s or
+    /// `vlnav credentials k8s`'), and the `vlnav-edge` flags that use them.
+    Robot(vlnav::credentials::RobotCredentialsArgs),
     /// Revoke a robot, a component or one certificate: writes
     /// <dir>/revoked.toml, which servers read again within a second
     /// (docs/security.md).
@@ -57,7 +60,8 @@ enum Cmd {
     Worlds(WorldsCmd),
     /// Issue and revoke credentials: `vlnav credentials k8s` writes the
     /// Secrets of a Kubernetes deployment (certificates for every component,
-    /// tokens); `vlnav credentials revoke` refuses a robot or component.
+    /// tokens); `vlnav credentials robot` issues one robot's certificate;
+    /// `vlnav credentials revoke` refuses a robot or component.
     #[command(subcommand)]
     Credentials(CredentialsCmd),
     /// Feed a mission recording's frames through a fresh gateway and stages
@@ -91,7 +95,8 @@ async fn trace_receiver(args: &UpArgs, token: &CancellationToken) -> anyhow::Res
     let (endpoint, tls) = if args.insecure {
         (format!("http://{}", listener.local_addr()?), None)
     } else {
-        let pki = vlnav_runtime::security::DevPki::ensure(&data_dir.join("security"), &[])?;
+        let names = vlnav::up::server_names(args)?;
+        let pki = vlnav_runtime::security::DevPki::ensure_named(&data_dir.join("security"), &[], &names)?;
         let vars = [
             ("OTEL_EXPORTER_OTLP_CERTIFICATE", pki.ca()),
             ("OTEL_EXPORTER_OTLP_CLIENT_CERTIFICATE", pki.gateway_cert()),
@@ -136,9 +141,12 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             }
             match &stack.security {
                 Some(sec) => eprintln!(
-                    "TLS and tokens on every link; credentials in {}\n  vlnav mission \"move 2 m ahead\"    (picks them up)\n  {}",
+                    "TLS and tokens on every link; credentials in {}\n  vlnav mission \"move 2 m ahead\"    (picks them up)\n  {}\n  \
+                     the gateway's certificate names {} (more: --gateway-name); a robot's files: \
+                     vlnav credentials robot --id ID --out DIR",
                     sec.pki.dir.display(),
-                    sec.grpcurl_hint(stack.gateway_addr)
+                    sec.grpcurl_hint(stack.gateway_addr),
+                    sec.pki.server_names().join(", ")
                 ),
                 None => eprintln!(
                     "INSECURE: plaintext and no tokens (--insecure); anyone who reaches {} can drive the robot",
@@ -233,6 +241,11 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
         Cmd::Credentials(CredentialsCmd::K8s(args)) => {
             let dir = vlnav::credentials::write_k8s(&args)?;
             eprintln!("{}", vlnav::credentials::next_steps(&args, &dir));
+            Ok(())
+        }
+        Cmd::Credentials(CredentialsCmd::Robot(args)) => {
+            let (_, report) = vlnav::credentials::issue_robot(&args)?;
+            println!("{report}");
             Ok(())
         }
         Cmd::Credentials(CredentialsCmd::Revoke(args)) => {

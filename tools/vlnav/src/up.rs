@@ -19,6 +19,13 @@ pub struct UpArgs {
     /// Where the gateway listens.
     #[arg(long, default_value = "127.0.0.1:50051")]
     pub listen: SocketAddr,
+    /// A DNS name or IP address robots and clients on the network dial the
+    /// gateway by, put in the development server certificate besides
+    /// localhost, 127.0.0.1 and ::1 (an existing certificate lacking one is
+    /// issued again from the same CA); repeatable. A --listen address that is
+    /// neither loopback nor 0.0.0.0 is added by itself.
+    #[arg(long = "gateway-name", value_name = "NAME")]
+    pub gateway_names: Vec<String>,
     /// Put every server on a free port chosen by the OS (for tests and side-by-side stacks).
     #[arg(long)]
     pub ephemeral_ports: bool,
@@ -69,6 +76,7 @@ impl Default for UpArgs {
     fn default() -> Self {
         Self {
             listen: SocketAddr::from(([127, 0, 0, 1], ports::GATEWAY)),
+            gateway_names: Vec::new(),
             ephemeral_ports: false,
             no_robot: false,
             robot_id: "husky-1".into(),
@@ -111,7 +119,13 @@ pub struct StackSecurity {
 impl StackSecurity {
     /// Opens (first time: creates) the credentials in `dir`.
     pub fn ensure(dir: &std::path::Path, robots: &[&str]) -> anyhow::Result<Self> {
-        let pki = DevPki::ensure(dir, robots)?;
+        Self::ensure_named(dir, robots, &[])
+    }
+
+    /// As [`StackSecurity::ensure`], the server certificate also naming
+    /// `server_names` (issued again when it lacks one).
+    pub fn ensure_named(dir: &std::path::Path, robots: &[&str], server_names: &[String]) -> anyhow::Result<Self> {
+        let pki = DevPki::ensure_named(dir, robots, server_names)?;
         let tokens_file = vlnav_gateway::auth::ensure_dev_tokens(dir)?;
         Ok(Self {
             operator_token: read_token(&dir.join("operator.token"))?,
@@ -316,17 +330,40 @@ pub fn apply_perception(
     }
 }
 
+/// The names besides loopback the development server certificate must
+/// carry: every `--gateway-name`, and the `--listen` address when it is a
+/// specific address of the network. Refused with `--insecure` (no
+/// certificate) and when a name cannot be one.
+pub fn server_names(args: &UpArgs) -> anyhow::Result<Vec<String>> {
+    if args.insecure && !args.gateway_names.is_empty() {
+        anyhow::bail!(
+            "--gateway-name puts a name in the gateway's TLS certificate, and --insecure serves no TLS: drop one of the two"
+        );
+    }
+    let mut names = Vec::new();
+    for name in &args.gateway_names {
+        vlnav_runtime::security::check_server_name(name).map_err(|e| anyhow::anyhow!("--gateway-name {e}"))?;
+        names.push(name.clone());
+    }
+    let ip = args.listen.ip();
+    if !ip.is_loopback() && !ip.is_unspecified() {
+        names.push(ip.to_string());
+    }
+    Ok(names)
+}
+
 /// Starts the stack. Telemetry must already be initialised.
 pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
     let token = CancellationToken::new();
     let mut tasks = JoinSet::new();
+    let names = server_names(args)?;
     let security = if args.insecure {
         if !args.listen.ip().is_loopback() {
             tracing::warn!(listen = %args.listen, "--insecure on a non-loopback address: anyone who reaches it can drive the robot");
         }
         None
     } else {
-        Some(StackSecurity::ensure(&args.data_dir.join("security"), &[&args.robot_id])?)
+        Some(StackSecurity::ensure_named(&args.data_dir.join("security"), &[&args.robot_id], &names)?)
     };
     let mut cfg = ServerConfig { insecure: args.insecure, ..ServerConfig::default() };
     if let Some(sec) = &security {
@@ -418,4 +455,55 @@ pub fn robot_options(args: &UpArgs, gateway_uri: &str) -> anyhow::Result<vlnav_e
     edge.seed = args.seed;
     edge.lockstep = !args.realtime;
     Ok(edge)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gateway_names_are_checked_and_a_network_listen_address_is_named_too() {
+        let args = |f: &dyn Fn(&mut UpArgs)| {
+            let mut a = UpArgs::default();
+            f(&mut a);
+            a
+        };
+        assert!(server_names(&args(&|_| {})).unwrap().is_empty());
+        let names = server_names(&args(&|a| {
+            a.gateway_names = vec!["gw.lab.example".into(), "fd00::7".into()];
+            a.listen = "192.168.1.20:50051".parse().unwrap();
+        }))
+        .unwrap();
+        assert_eq!(names, ["gw.lab.example", "fd00::7", "192.168.1.20"]);
+        let names = server_names(&args(&|a| a.listen = "0.0.0.0:50051".parse().unwrap())).unwrap();
+        assert!(names.is_empty(), "0.0.0.0 is no name: {names:?}");
+        let names = server_names(&args(&|a| a.listen = "127.0.0.2:50051".parse().unwrap())).unwrap();
+        assert!(names.is_empty(), "loopback is named already: {names:?}");
+        let e = server_names(&args(&|a| a.gateway_names = vec!["https://gw:50051".into()])).unwrap_err().to_string();
+        assert!(e.starts_with("--gateway-name \"https://gw:50051\"") && e.contains("without a scheme"), "{e}");
+        let e = server_names(&args(&|a| {
+            a.insecure = true;
+            a.gateway_names = vec!["gw".into()];
+        }))
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("--insecure serves no TLS"), "{e}");
+    }
+
+    #[tokio::test]
+    async fn a_bad_gateway_name_stops_the_start_before_anything_is_written() {
+        let data = tempfile::tempdir().unwrap();
+        let pki = DevPki::ensure(&data.path().join("security"), &["husky-1"]).unwrap();
+        let server = std::fs::read(pki.server_cert()).unwrap();
+        let e = up(&UpArgs {
+            data_dir: data.path().to_path_buf(),
+            gateway_names: vec!["0.0.0.0".into()],
+            ..UpArgs::default()
+        })
+        .await
+        .err()
+        .expect("0.0.0.0 is refused");
+        assert!(e.to_string().contains("--gateway-name \"0.0.0.0\""), "{e}");
+        assert_eq!(std::fs::read(pki.server_cert()).unwrap(), server, "the certificate is untouched");
+    }
 }
