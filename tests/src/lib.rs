@@ -3,11 +3,13 @@
 //! for the chaos tier, the deployment's binaries as separate processes
 //! ([`procs`]), a breakable TCP link ([`proxy`]), a simulated robot driven by
 //! the edge agent in this process ([`robot`]) and the measure of how fast it
-//! is stopped ([`stops`]).
+//! is stopped ([`stops`]); a ROS 2 robot on rclpy in a network namespace of
+//! the test's own ([`ros2`]).
 
 pub mod procs;
 pub mod proxy;
 pub mod robot;
+pub mod ros2;
 pub mod stops;
 
 use std::path::{Path, PathBuf};

@@ -3,7 +3,9 @@
 //! one shell, against a stack this test starts (`vlnav up`'s stack, with its
 //! credentials in `./.vlnav/security` as a user would have them); blocks
 //! marked `<!-- doc-test: check -->` (a cluster, a robot, minutes of work)
-//! are checked with `bash -n`, and every block for flags: a `--flag` given
+//! are checked with `bash -n`, as are blocks marked `<!-- doc-test: robot -->`
+//! (README.md's "Connecting a real robot", which `tests/tests/real_robot.rs`
+//! runs on two "computers" with a ROS 2 robot), and every block for flags: a `--flag` given
 //! to one of the deployment's binaries (by name, by path or through
 //! `cargo run -p … --`) must be in that command's `--help`.
 //!
@@ -61,7 +63,7 @@ fn marked_blocks() -> Vec<Block> {
         while i < lines.len() {
             let mode = match lines[i].trim() {
                 "<!-- doc-test: run -->" => Some(Mode::Run),
-                "<!-- doc-test: check -->" => Some(Mode::Check),
+                "<!-- doc-test: check -->" | "<!-- doc-test: robot -->" => Some(Mode::Check),
                 _ => None,
             };
             i += 1;

@@ -19,15 +19,13 @@
 //! user and network namespace (`unshare -rn`) that has only loopback, with a
 //! multicast route on it: nothing it sends leaves this machine.
 
-use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant, SystemTime};
+use std::path::PathBuf;
+use std::process::{Command, Stdio};
+use std::time::Duration;
 
-use serde_json::Value;
 use vlnav_e2e::procs::binaries;
 use vlnav_e2e::repo_root;
+use vlnav_e2e::ros2::{Cmd, FakeA300, inside_own_network_namespace, spawn, wait_for, wall_now};
 use vlnav_proto::v1::fleet_service_client::FleetServiceClient;
 use vlnav_proto::v1::mission_service_client::MissionServiceClient;
 use vlnav_proto::v1::submit_mission_request::Instruction;
@@ -36,7 +34,6 @@ use vlnav_runtime::client::{TracedChannel, channel_with};
 use vlnav_runtime::security::{ClientSecurity, ClientTlsArgs};
 
 const TEST: &str = "a_mission_drives_a_ros2_robot_and_its_estop_and_the_deadman_stop_it";
-const INSIDE: &str = "VLNAV_ROS2_TEST_NETNS";
 const ROBOT: &str = "a300-1";
 const NAMESPACE: &str = "a300_0001";
 const DEADMAN_S: f64 = 0.3;
@@ -51,129 +48,9 @@ const TICK_SLACK_S: f64 = 1.0 / CONTROL_HZ;
 
 #[test]
 fn a_mission_drives_a_ros2_robot_and_its_estop_and_the_deadman_stop_it() {
-    if std::env::var_os(INSIDE).is_some() {
+    if inside_own_network_namespace(TEST) {
         let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
         rt.block_on(inside_the_namespace());
-        return;
-    }
-    // Build outside: cargo needs the network namespace's outside (its registry, its jobserver).
-    let bin = binaries().expect("the deployment's binaries build");
-    let exe = std::env::current_exe().expect("the test executable's path");
-    let script = "ip link set lo up && ip route add 224.0.0.0/4 dev lo && exec \"$0\" \"$@\"";
-    let status = Command::new("unshare")
-        .args(["--user", "--map-root-user", "--net", "sh", "-c", script])
-        .arg(&exe)
-        .args(["--exact", TEST, "--nocapture", "--test-threads=1"])
-        .env(INSIDE, "1")
-        .env("VLNAV_BIN_DIR", &bin)
-        .status()
-        .unwrap_or_else(|e| {
-            panic!("cannot run unshare: {e}. The ROS 2 test runs DDS in a network namespace of its own: it needs util-linux's unshare, iproute2's ip and unprivileged user namespaces")
-        });
-    assert!(status.success(), "the ROS 2 test failed inside its network namespace (its output is above): {status}");
-}
-
-/// Kills the child when dropped (the test may panic).
-struct Proc(Child);
-
-impl Drop for Proc {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn spawn(what: &str, mut cmd: Command) -> Proc {
-    Proc(cmd.spawn().unwrap_or_else(|e| panic!("cannot start {what}: {e}")))
-}
-
-fn wall_now() -> f64 {
-    SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).expect("the clock is after 1970").as_secs_f64()
-}
-
-/// The venv's Python with rclpy, or a failure saying how to install it.
-fn ros2_python() -> PathBuf {
-    let python = repo_root().join(".venv/bin/python");
-    let ok = Command::new(&python)
-        .args(["-c", "import rclpy, geometry_msgs.msg, nav_msgs.msg, sensor_msgs.msg, std_msgs.msg"])
-        .env("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-        .status()
-        .is_ok_and(|s| s.success());
-    assert!(
-        ok,
-        "{} cannot import rclpy and the message packages: run deploy/setup-tools.sh (or `make test`), which installs deploy/tools.d/ros2.txt",
-        python.display()
-    );
-    python
-}
-
-/// What the fake robot printed: JSON lines.
-#[derive(Clone, Default)]
-struct RobotLog(Arc<Mutex<Vec<Value>>>);
-
-impl RobotLog {
-    fn follow(&self, out: impl std::io::Read + Send + 'static) {
-        let log = self.0.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(out).lines().map_while(Result::ok) {
-                if let Ok(v) = serde_json::from_str::<Value>(&line) {
-                    log.lock().unwrap().push(v);
-                }
-            }
-        });
-    }
-
-    fn all(&self, kind: &str) -> Vec<Value> {
-        self.0.lock().unwrap().iter().filter_map(|v| v.get(kind).cloned()).collect()
-    }
-
-    /// Commands received: (header stamp, receipt on the robot's clock, linear, angular).
-    fn commands(&self) -> Vec<Cmd> {
-        self.all("cmd")
-            .iter()
-            .map(|c| Cmd {
-                stamp: c["stamp"].as_f64().unwrap_or(f64::NAN),
-                recv: c["recv"].as_f64().unwrap_or(f64::NAN),
-                linear: c["linear"].as_f64().unwrap_or(f64::NAN),
-                angular: c["angular"].as_f64().unwrap_or(f64::NAN),
-            })
-            .collect()
-    }
-
-    fn odom_x(&self) -> f64 {
-        self.all("odom").last().and_then(|o| o["x"].as_f64()).unwrap_or(0.0)
-    }
-}
-
-#[derive(Clone, Copy, Debug)]
-struct Cmd {
-    stamp: f64,
-    recv: f64,
-    linear: f64,
-    angular: f64,
-}
-
-impl Cmd {
-    fn moves(&self) -> bool {
-        self.linear != 0.0 || self.angular != 0.0
-    }
-}
-
-fn estop(stdin: &mut ChildStdin, on: bool) -> f64 {
-    let at = wall_now();
-    writeln!(stdin, "estop {}", if on { "on" } else { "off" }).expect("the fake robot reads its stdin");
-    stdin.flush().expect("the fake robot reads its stdin");
-    at
-}
-
-async fn wait_for<T>(what: &str, limit: Duration, mut f: impl AsyncFnMut() -> Option<T>) -> T {
-    let start = Instant::now();
-    loop {
-        if let Some(v) = f().await {
-            return v;
-        }
-        assert!(start.elapsed() < limit, "{what}: not within {} s", limit.as_secs());
-        tokio::time::sleep(Duration::from_millis(100)).await;
     }
 }
 
@@ -187,18 +64,7 @@ fn submit(text: &str) -> SubmitMissionRequest {
 }
 
 async fn inside_the_namespace() {
-    // /proc/net/dev lists this network namespace's interfaces (/sys/class/net
-    // shows the namespace sysfs was mounted in).
-    let interfaces: Vec<String> = std::fs::read_to_string("/proc/net/dev")
-        .expect("/proc/net/dev")
-        .lines()
-        .skip(2)
-        .filter_map(|l| l.split(':').next().map(|n| n.trim().to_string()))
-        .collect();
-    assert_eq!(interfaces, vec!["lo".to_string()], "the test's network namespace has only loopback");
-
     let bin = binaries().expect("the binaries were built outside");
-    let python = ros2_python();
     let data = tempfile::tempdir().unwrap();
     let models = std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("models"));
     assert!(models.join("minilm").exists(), "models are missing in {}: run deploy/fetch-models.sh", models.display());
@@ -236,19 +102,8 @@ async fn inside_the_namespace() {
     let mut missions = MissionServiceClient::new(channel);
 
     // 2. The fake A300.
-    let mut a300 = Command::new(&python);
-    a300.arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/ros2_robot/fake_a300.py"))
-        .args(["--namespace", NAMESPACE, "--wall-x", "12"])
-        .env("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-        .env("ROS_DOMAIN_ID", "17")
-        .env("PYTHONUNBUFFERED", "1")
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit());
-    let mut a300 = spawn("the fake A300 (rclpy)", a300);
-    let log = RobotLog::default();
-    log.follow(a300.0.stdout.take().unwrap());
-    let mut a300_in = a300.0.stdin.take().unwrap();
+    let mut a300 = FakeA300::start(NAMESPACE, 12.0, 17);
+    let log = a300.log.clone();
 
     // 3. The edge agent, as a user runs it on the robot's computer.
     let mut edge = Command::new(bin.join("vlnav-edge"));
@@ -280,7 +135,7 @@ async fn inside_the_namespace() {
     assert!(!log.commands().is_empty(), "the edge agent holds cmd_vel at zero while idle");
 
     // 4. No mission starts while the robot's e-stop is engaged.
-    estop(&mut a300_in, true);
+    a300.estop(true);
     wait_for("the robot's e-stop in ListRobots", Duration::from_secs(10), async || {
         robot_info(&mut fleet).await.filter(|r| r.estop && r.platform_estop)
     })
@@ -288,7 +143,7 @@ async fn inside_the_namespace() {
     let refused = missions.submit_mission(submit("move 5 m ahead")).await.unwrap_err();
     assert_eq!(refused.code(), tonic::Code::FailedPrecondition, "{refused:?}");
     assert!(refused.message().contains("emergency stop engaged"), "{}", refused.message());
-    estop(&mut a300_in, false);
+    a300.estop(false);
     wait_for("the e-stop released in ListRobots", Duration::from_secs(10), async || {
         robot_info(&mut fleet).await.filter(|r| !r.estop && !r.platform_estop)
     })
@@ -309,7 +164,7 @@ async fn inside_the_namespace() {
     }
 
     // 6. The robot's e-stop stops it, whatever the gateway says.
-    let engaged = estop(&mut a300_in, true);
+    let engaged = a300.estop(true);
     tokio::time::sleep(Duration::from_millis(1500)).await;
     let info = robot_info(&mut fleet).await.expect("ListRobots");
     assert!(info.estop && info.platform_estop, "{info:?}");
@@ -329,7 +184,7 @@ async fn inside_the_namespace() {
     assert_eq!(state, MissionState::Running as i32, "the mission waits while the robot is held");
 
     // 7. Released, the mission drives again.
-    let released = estop(&mut a300_in, false);
+    let released = a300.estop(false);
     wait_for("motion again after the e-stop is released", Duration::from_secs(30), async || {
         log.commands().iter().any(|c| c.recv > released && c.moves()).then_some(())
     })
