@@ -63,9 +63,11 @@ use vlnav_eval::metrics::Mode;
 /// near people, waits for a person in its way and gives way to them
 /// (docs/design.md §4, "People in the way"): it meets the walkers at other
 /// places. Over the whole realistic crossing hall (50 trials) success went
-/// 62 → 64 %, and on the generated test set 65.9 → 71.7 %.
+/// 62 → 64 %, and on the generated test set 65.9 → 71.7 %. It asks 7.2 m
+/// short since the robot keeps behind walkers rather than swerving far off
+/// for them (`services/local-planner/src/control/behind.rs`).
 const PINNED: &str = "crossing 0 succeeded true true +0.02 0 0\n\
-crossing 1 clarification false false +7.12 0 0\n\
+crossing 1 clarification false false +7.19 0 0\n\
 garage 0 succeeded true true +0.02 0 0\n\
 garage 1 succeeded true true +0.07 0 0\n\
 precise 0 succeeded true true +0.02 0 0\n\
