@@ -24,6 +24,7 @@
 use nalgebra::Vector2;
 use vlnav_geometry::wrap_angle;
 
+use super::follow::look_point;
 use super::{FollowParams, RobotState, StepInput};
 use crate::cloud::ObstacleCloud;
 use crate::planner::{Plan, Planner, Selection};
@@ -100,9 +101,10 @@ impl RobotState {
 }
 
 /// The bearing a selection sets off on: its look-ahead point's
-/// (`follow.rs`), rad.
+/// (`follow::look_point`), rad.
 pub(super) fn look_bearing(sel: &Selection, p: &FollowParams) -> f64 {
-    sel.points.iter().find(|q| q.norm() >= p.look_ahead_m).or(sel.points.last()).map_or(0.0, |q| q.y.atan2(q.x))
+    let look = look_point(sel, p);
+    look.y.atan2(look.x)
 }
 
 #[cfg(test)]

@@ -21,7 +21,18 @@ use nalgebra::Vector2;
 
 use super::rotate::clamp_turn;
 use super::{FollowParams, RobotState, StepInput, StepOutput, StepStatus, polar};
-use crate::planner::Planner;
+use crate::planner::{Planner, Selection};
+
+/// Where the selected path crosses `look_ahead_m` from the robot
+/// (`base_link`), or its end if it stays nearer.
+pub(super) fn look_point(sel: &Selection, p: &FollowParams) -> Vector2<f64> {
+    sel.points
+        .iter()
+        .find(|q| q.norm() >= p.look_ahead_m)
+        .or(sel.points.last())
+        .copied()
+        .unwrap_or_else(|| Vector2::new(1.0, 0.0))
+}
 
 impl RobotState {
     /// One frame toward a position goal the robot faces (`goal_base`: the
@@ -61,13 +72,7 @@ impl RobotState {
             self.last_path_odom.clear();
             return self.stop(out, StepStatus::Blocked);
         };
-        let look = sel
-            .points
-            .iter()
-            .find(|q| q.norm() >= p.look_ahead_m)
-            .or(sel.points.last())
-            .copied()
-            .unwrap_or_else(|| Vector2::new(1.0, 0.0));
+        let look = look_point(&sel, p);
         let dir = look.y.atan2(look.x);
         out.angular = clamp_turn(p.yaw_gain * dir, dir, p, dt);
         // Aim at the middle of the arrival band: one frame's travel never
