@@ -19,7 +19,7 @@ use crate::executor::{Ctx, EventSink, MissionRun, Seen};
 use crate::frames::CheckedFrame;
 use crate::hub::Hub;
 use crate::pipeline::Pipeline;
-use crate::viz::{FrameView, MissionView, Viz};
+use crate::viz::{FrameView, MissionView, RobotHealth, Viz};
 
 pub(crate) type Outbound = mpsc::Sender<Result<GatewayCommand, Status>>;
 
@@ -467,7 +467,12 @@ impl RobotActor {
             i.last_stamp = stamp;
             i.last_odometry = f.odom;
         });
-        let estop = self.info.lock().is_ok_and(|i| i.estop);
+        let health = self
+            .info
+            .lock()
+            .map(|i| RobotHealth { estop: i.estop, platform_estop: i.platform_estop, battery: i.battery })
+            .unwrap_or_default();
+        let estop = health.estop;
         let fleet = self.fleet.clone();
         let ctx = fleet.ctx();
         let (twist, active, span, mission_id, seen, mission) = match self.run.as_mut() {
@@ -542,7 +547,14 @@ impl RobotActor {
             fleet
                 .viz
                 .frame(
-                    FrameView { robot_id: self.robot_id.clone(), frame: frame.into_sensor(), command, mission, seen },
+                    FrameView {
+                        robot_id: self.robot_id.clone(),
+                        frame: frame.into_sensor(),
+                        command,
+                        mission,
+                        seen,
+                        health,
+                    },
                     lockstep,
                 )
                 .await;

@@ -48,6 +48,18 @@ pub(crate) struct MissionView {
     pub(crate) state: String,
 }
 
+/// The robot's own state when a frame arrived, as its edge agent last
+/// reported it (`RobotStatus` in proto/vlnav/v1/fleet.proto).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct RobotHealth {
+    /// Any e-stop engaged: the edge agent's or the robot's own.
+    pub(crate) estop: bool,
+    /// The robot's own emergency stop is engaged.
+    pub(crate) platform_estop: bool,
+    /// `None` while the robot reports no battery.
+    pub(crate) battery: Option<pb::BatteryStatus>,
+}
+
 /// One frame and what the gateway made of it.
 pub(crate) struct FrameView {
     pub(crate) robot_id: String,
@@ -55,6 +67,7 @@ pub(crate) struct FrameView {
     pub(crate) command: pb::VelocityCommand,
     pub(crate) mission: Option<MissionView>,
     pub(crate) seen: Seen,
+    pub(crate) health: RobotHealth,
 }
 
 enum Msg {
@@ -321,7 +334,9 @@ const STATUS_SCHEMA: &str = r#"{"title":"vlnav mission status","type":"object","
 "mission_id":{"type":"string"},"state":{"type":"string"},"step":{"type":"integer"},"steps":{"type":"integer"},
 "step_desc":{"type":"string"},"drive_status":{"type":"string"},"distance_to_goal_m":{"type":"number"},
 "free_paths":{"type":"integer"},"boxes":{"type":"integer"},"linear_mps":{"type":"number"},
-"angular_radps":{"type":"number"},"stamp":{"type":"number"}}}"#;
+"angular_radps":{"type":"number"},"estop":{"type":"boolean"},"platform_estop":{"type":"boolean"},
+"battery_fraction":{"type":"number"},"battery_voltage":{"type":"number"},"battery_low":{"type":"boolean"},
+"stamp":{"type":"number"}}}"#;
 
 impl Topics {
     fn new(ctx: &Arc<Context>, robot: &str) -> Self {
@@ -491,7 +506,7 @@ impl View {
     }
 
     fn frame(&mut self, view: FrameView) {
-        let FrameView { robot_id, mut frame, command, mission, seen } = view;
+        let FrameView { robot_id, mut frame, command, mission, seen, health } = view;
         let Some(mut f) = frame.frame.take() else { return };
         let truth = frame.truth;
         let (max_bytes, ctx, hub) = (self.max_bytes, self.ctx.clone(), self.hub.clone());
@@ -653,22 +668,7 @@ impl View {
             t.scene.log_with_time(&scene(stamp, t, &robot.trail, &seen), nanos(stamp));
         }
         if t.status.has_sinks() {
-            let mission = mission.unwrap_or_default();
-            let drive = seen.drive.as_ref();
-            let status = serde_json::json!({
-                "mission_id": mission.mission_id,
-                "state": if mission.mission_id.is_empty() { "idle".to_string() } else { mission.state },
-                "step": mission.step.as_ref().map_or(-1, |s| s.0 as i64),
-                "steps": mission.steps,
-                "step_desc": mission.step.as_ref().map_or("", |s| s.1.as_str()),
-                "drive_status": drive.map_or("".to_string(), |d| format!("{:?}", d.status).to_lowercase()),
-                "distance_to_goal_m": drive.map_or(0.0, |d| d.distance_to_goal),
-                "free_paths": drive.map_or(0, |d| d.free_paths),
-                "boxes": seen.boxes.len(),
-                "linear_mps": command.twist.map_or(0.0, |t| t.linear),
-                "angular_radps": command.twist.map_or(0.0, |t| t.angular),
-                "stamp": stamp,
-            });
+            let status = status_json(stamp, mission.unwrap_or_default(), &seen, &command, &health);
             t.status.log_with_meta(status.to_string().as_bytes(), at());
         }
 
@@ -681,6 +681,37 @@ impl View {
             }
         }
     }
+}
+
+/// One message of `/<robot>/mission/status` (schema: `STATUS_SCHEMA`).
+fn status_json(
+    stamp: f64,
+    mission: MissionView,
+    seen: &Seen,
+    command: &pb::VelocityCommand,
+    health: &RobotHealth,
+) -> serde_json::Value {
+    let drive = seen.drive.as_ref();
+    serde_json::json!({
+        "mission_id": mission.mission_id,
+        "state": if mission.mission_id.is_empty() { "idle".to_string() } else { mission.state },
+        "step": mission.step.as_ref().map_or(-1, |s| s.0 as i64),
+        "steps": mission.steps,
+        "step_desc": mission.step.as_ref().map_or("", |s| s.1.as_str()),
+        "drive_status": drive.map_or("".to_string(), |d| format!("{:?}", d.status).to_lowercase()),
+        "distance_to_goal_m": drive.map_or(0.0, |d| d.distance_to_goal),
+        "free_paths": drive.map_or(0, |d| d.free_paths),
+        "boxes": seen.boxes.len(),
+        "linear_mps": command.twist.map_or(0.0, |t| t.linear),
+        "angular_radps": command.twist.map_or(0.0, |t| t.angular),
+        "estop": health.estop,
+        "platform_estop": health.platform_estop,
+        // -1: the robot reports no charge (fleet.proto BatteryStatus).
+        "battery_fraction": health.battery.as_ref().map_or(-1.0, |b| b.fraction),
+        "battery_voltage": health.battery.as_ref().map_or(0.0, |b| b.voltage),
+        "battery_low": health.battery.as_ref().is_some_and(|b| b.low),
+        "stamp": stamp,
+    })
 }
 
 /// Deletes the oldest `.mcap` files in `dir` (never one of `open`) until
@@ -984,6 +1015,7 @@ mod tests {
                 command: pb::VelocityCommand::default(),
                 mission: None,
                 seen: Seen::default(),
+                health: RobotHealth::default(),
             };
             viz.frame(view, lockstep).await;
         }
@@ -1084,6 +1116,30 @@ mod tests {
         let left: Vec<bool> = names.iter().map(|n| dir.path().join(n).exists()).collect();
         assert_eq!(left, [true, false, false, true]);
         assert!(dir.path().join("notes.txt").exists(), "only recordings are deleted");
+    }
+
+    #[test]
+    fn the_status_shows_the_robots_estop_and_battery() {
+        let mission = MissionView { mission_id: "m-1".into(), state: "running".into(), ..Default::default() };
+        let cmd = pb::VelocityCommand::default();
+        let unknown = status_json(2.0, mission.clone(), &Seen::default(), &cmd, &RobotHealth::default());
+        assert_eq!(unknown["battery_fraction"], -1.0, "{unknown}");
+        assert_eq!(unknown["battery_low"], false);
+        assert_eq!(unknown["estop"], false);
+        let health = RobotHealth {
+            estop: true,
+            platform_estop: true,
+            battery: Some(pb::BatteryStatus { stamp: 1.5, fraction: 0.15, voltage: 24.1, low: true }),
+        };
+        let low = status_json(2.0, mission, &Seen::default(), &cmd, &health);
+        assert_eq!((low["battery_fraction"].as_f64(), low["battery_voltage"].as_f64()), (Some(0.15), Some(24.1)));
+        assert_eq!((low["battery_low"].as_bool(), low["platform_estop"].as_bool()), (Some(true), Some(true)));
+        assert_eq!(low["state"], "running");
+        // Every field the message carries is in the schema Foxglove is given.
+        let schema: serde_json::Value = serde_json::from_str(STATUS_SCHEMA).unwrap();
+        for key in low.as_object().unwrap().keys() {
+            assert!(schema["properties"].get(key).is_some(), "{key} is not in STATUS_SCHEMA");
+        }
     }
 
     #[test]

@@ -135,7 +135,16 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             trace_receiver(&args, &receiver).await?;
             let telemetry = telemetry::init("vlnav")?;
             let stack = up(&args).await?;
-            eprintln!("vlnav is up: gateway on {} (Ctrl-C to stop)", stack.gateway_uri());
+            if stack.dial_addr() == stack.gateway_addr {
+                eprintln!("vlnav is up: gateway on {} (Ctrl-C to stop)", stack.gateway_uri());
+            } else {
+                eprintln!(
+                    "vlnav is up: gateway listening on {} (every interface); here dial {}, from another computer \
+                     a name in its certificate (Ctrl-C to stop)",
+                    stack.gateway_addr,
+                    stack.gateway_uri()
+                );
+            }
             if let Some(addr) = stack.live_view_addr() {
                 eprintln!("{}", live_view_hint(addr));
             }
@@ -145,7 +154,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                      the gateway's certificate names {} (more: --gateway-name); a robot's files: \
                      vlnav credentials robot --id ID --out DIR",
                     sec.pki.dir.display(),
-                    sec.grpcurl_hint(stack.gateway_addr),
+                    sec.grpcurl_hint(stack.dial_addr()),
                     sec.pki.server_names().join(", ")
                 ),
                 None => eprintln!(

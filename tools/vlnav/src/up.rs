@@ -156,6 +156,18 @@ impl StackSecurity {
     }
 }
 
+/// `addr` with the unspecified IP (`0.0.0.0`, `::`) replaced by loopback of
+/// the same family: an address a client on this computer can dial and a
+/// development certificate names.
+pub fn dialable(addr: SocketAddr) -> SocketAddr {
+    let ip = match addr.ip() {
+        std::net::IpAddr::V4(ip) if ip.is_unspecified() => std::net::IpAddr::V4(std::net::Ipv4Addr::LOCALHOST),
+        std::net::IpAddr::V6(ip) if ip.is_unspecified() => std::net::IpAddr::V6(std::net::Ipv6Addr::LOCALHOST),
+        ip => ip,
+    };
+    SocketAddr::new(ip, addr.port())
+}
+
 /// A running stack. Dropping it does not stop it; call [`Stack::shutdown`].
 pub struct Stack {
     pub gateway_addr: SocketAddr,
@@ -175,9 +187,16 @@ impl Stack {
         self.gateway.live_view_addr()
     }
 
+    /// Where a client on this computer dials the gateway: its address, or
+    /// loopback where it listens on every interface (`--listen 0.0.0.0:…`),
+    /// since no certificate names the unspecified address.
+    pub fn dial_addr(&self) -> SocketAddr {
+        dialable(self.gateway_addr)
+    }
+
     pub fn gateway_uri(&self) -> String {
         let scheme = if self.security.is_some() { "https" } else { "http" };
-        format!("{scheme}://{}", self.gateway_addr)
+        format!("{scheme}://{}", self.dial_addr())
     }
 
     /// What an operator's client brings to this stack (nothing when insecure).
@@ -435,7 +454,7 @@ pub async fn up(args: &UpArgs) -> anyhow::Result<Stack> {
 
     if !args.no_robot {
         let scheme = if security.is_some() { "https" } else { "http" };
-        let mut edge = robot_options(args, &format!("{scheme}://{gateway_addr}"))?;
+        let mut edge = robot_options(args, &format!("{scheme}://{}", dialable(gateway_addr)))?;
         if let Some(sec) = &security {
             edge.tls = sec.robot(&args.robot_id)?;
         }
@@ -460,6 +479,15 @@ pub fn robot_options(args: &UpArgs, gateway_uri: &str) -> anyhow::Result<vlnav_e
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_gateway_on_every_interface_is_dialled_on_loopback() {
+        let d = |a: &str| dialable(a.parse().unwrap()).to_string();
+        assert_eq!(d("0.0.0.0:50051"), "127.0.0.1:50051");
+        assert_eq!(d("[::]:50051"), "[::1]:50051");
+        assert_eq!(d("192.168.1.20:50051"), "192.168.1.20:50051");
+        assert_eq!(d("127.0.0.2:7"), "127.0.0.2:7");
+    }
 
     #[test]
     fn gateway_names_are_checked_and_a_network_listen_address_is_named_too() {
