@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use vlnav_e2e::{CASE_2, TestStack, grpcurl_with, json_objects};
+use vlnav_e2e::{CASE_2, TestStack, grpcurl_with, json_objects, tool};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
@@ -65,22 +65,39 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
         plan_json.as_array().expect("array").iter().map(|s| s["action"].as_str().unwrap()).collect();
     assert_eq!(actions, ["MOVE", "FIND", "FIND", "FIND"], "{plan_json}");
 
+    // Watch with grpcurl until the mission ends. A mission that stops to ask
+    // (AWAITING_CLARIFICATION) never ends by itself: GetMission, polled
+    // meanwhile, fails the test at once with the question it asked.
     let watch_body = serde_json::json!({"mission_id": id}).to_string();
-    let addr2 = addr.clone();
-    let viewer2 = viewer.clone();
-    let events = tokio::time::timeout(
-        Duration::from_secs(600),
-        tokio::task::spawn_blocking(move || {
-            grpcurl_with(
-                &viewer2,
-                &["-max-time", "590", "-d", &watch_body, &addr2, "vlnav.v1.MissionService/WatchMission"],
-            )
-        }),
-    )
-    .await
-    .expect("the mission finishes within 10 minutes")
-    .unwrap()
-    .expect("WatchMission");
+    let get_body = serde_json::json!({"mission_id": id}).to_string();
+    let mut watch = tokio::process::Command::new(tool("grpcurl"))
+        .args(viewer.iter().map(String::as_str))
+        .args(["-max-time", "590", "-d", &watch_body, &addr, "vlnav.v1.MissionService/WatchMission"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .kill_on_drop(true)
+        .spawn()
+        .expect("grpcurl runs");
+    let mut stdout = watch.stdout.take().expect("piped");
+    let read = tokio::spawn(async move {
+        let mut text = String::new();
+        tokio::io::AsyncReadExt::read_to_string(&mut stdout, &mut text).await.map(|_| text)
+    });
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(600);
+    let status = loop {
+        tokio::select! {
+            status = watch.wait() => break status.expect("grpcurl exits"),
+            _ = tokio::time::sleep(Duration::from_secs(2)) => {
+                let got = grpcurl_with(&viewer, &["-d", &get_body, &addr, "vlnav.v1.MissionService/GetMission"])
+                    .expect("GetMission");
+                let m: serde_json::Value = serde_json::from_str(&got).expect("JSON");
+                assert_ne!(m["state"], "MISSION_STATE_AWAITING_CLARIFICATION", "the mission asked: {}", m["clarification"]);
+                assert!(tokio::time::Instant::now() < deadline, "the mission did not finish within 10 minutes: {got}");
+            }
+        }
+    };
+    let events = read.await.unwrap().expect("grpcurl's output");
+    assert!(status.success(), "WatchMission: {status}; printed:\n{events}");
     let events = json_objects(&events);
     let kinds: Vec<String> = events
         .iter()
