@@ -121,7 +121,7 @@ pub struct EdgeOptions {
     /// sim: seed of the wheel-slip and depth-noise generators.
     #[arg(long, env = "VLNAV_EDGE_SEED", default_value_t = 0)]
     pub seed: u64,
-    /// sim: advance one frame period per answered frame (deterministic, faster than real time).
+    /// sim: advance one frame period per answered frame (deterministic, faster than real time); the world stands still while no mission drives the robot.
     #[arg(long, env = "VLNAV_EDGE_LOCKSTEP", default_value_t = false)]
     pub lockstep: bool,
     /// Stop unless the newest command is at most this old in sensor time, seconds.

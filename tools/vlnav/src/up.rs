@@ -39,7 +39,8 @@ pub struct UpArgs {
     pub scenario: String,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Run the simulated robot on the wall clock instead of in lockstep.
+    /// Run the simulated robot on the wall clock instead of in lockstep (in
+    /// lockstep its world stands still while no mission drives it).
     #[arg(long)]
     pub realtime: bool,
     /// Perception of the simulated robot's frames: `realistic` (the detector
