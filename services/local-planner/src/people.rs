@@ -141,6 +141,11 @@ impl Default for PeopleParams {
     }
 }
 
+/// How long a person must be seen keeping still to count as standing, s:
+/// most of the sightings' window (`PeopleParams::window_s`), so that
+/// someone who just came into view, or paused for a step, is not.
+const STANDING_SPAN_S: f64 = 1.0;
+
 #[derive(Clone, Debug)]
 struct Track {
     /// (stamp, odom position), oldest first.
@@ -167,6 +172,16 @@ impl Track {
     /// Whether the track walks now or did within `keep_s` before `stamp`.
     fn walker(&self, stamp: f64, p: &PeopleParams) -> bool {
         self.walked.is_some_and(|t| stamp - t <= p.keep_s)
+    }
+
+    /// Whether the track stands: seen for at least `STANDING_SPAN_S`,
+    /// slower than `walking_mps` over its kept sightings, and not walking
+    /// within `keep_s`.
+    fn standing(&self, stamp: f64, p: &PeopleParams) -> bool {
+        let (t0, t1) = (self.seen.front().map_or(0.0, |s| s.0), self.last().0);
+        !self.walker(stamp, p)
+            && t1 - t0 >= STANDING_SPAN_S
+            && self.velocity(p).is_some_and(|v| v.norm() < p.walking_mps)
     }
 
     /// Where the track is expected at `stamp`: a walker carried on at their
@@ -286,6 +301,12 @@ impl Tracker {
                 (pose.inverse_transform(&(at + v * dt)), p.radius_m + (p.spread_mps * dt).min(p.spread_max_m))
             })
             .collect()
+    }
+
+    /// Where each person seen standing (`Track::standing`) was last seen,
+    /// in `pose`'s frame.
+    pub fn standing_at(&self, stamp: f64, pose: &Pose2, p: &PeopleParams) -> Vec<Vector2<f64>> {
+        self.tracks.iter().filter(|t| t.standing(stamp, p)).map(|t| pose.inverse_transform(&t.last().1)).collect()
     }
 
     /// Whether a walker is expected within `range` of `pose` at `stamp`.
