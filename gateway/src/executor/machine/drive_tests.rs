@@ -219,19 +219,61 @@ fn waiting_for_a_person_is_no_lack_of_progress_and_is_asked_about_after_its_own_
 }
 
 #[test]
-fn a_wait_that_ends_restarts_the_stuck_clock() {
+fn a_wait_that_ends_restarts_the_stuck_clock_but_the_wait_counts_until_the_robot_gets_closer() {
     let p = ExecutorParams::default();
     let mut m = mission(vec![mv(6.0, 0.0)]);
     let mut t = 0.0;
     // Blocked and waiting in turns, each spell shorter than its own bound:
-    // never asked, since each wait breaks the blocked spell.
-    while t < 3.0 * p.stuck_timeout_s {
-        let status = if ((t / (p.stuck_timeout_s - 2.0)) as u32).is_multiple_of(2) {
-            DriveStatus::Blocked
-        } else {
-            DriveStatus::Waiting
-        };
+    // each wait breaks the blocked spell, so the way is never called
+    // blocked; but the robot gets no closer, and once the first wait is
+    // PERSON_WAIT_S old it asks about the person, at the next wait.
+    let spell = p.stuck_timeout_s - 2.0;
+    let mut waiting_from = None;
+    while !m.is_awaiting() {
+        assert!(t < 3.0 * PERSON_WAIT_S, "never asked");
+        let status = if ((t / spell) as u32).is_multiple_of(2) { DriveStatus::Blocked } else { DriveStatus::Waiting };
+        if status == DriveStatus::Waiting {
+            waiting_from.get_or_insert(t);
+        }
         cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(move |_| driven(status, 0.0, 6.0)));
+        t += 0.5;
+    }
+    let waited = t - 0.5 - waiting_from.unwrap();
+    assert!((PERSON_WAIT_S..=PERSON_WAIT_S + spell).contains(&waited), "asked after {waited:.1} s");
+    match &events(&mut m)[..] {
+        [Event::StepStarted { .. }, Event::StepFailed { reason, .. }, Event::ClarificationNeeded { .. }] => {
+            assert_eq!(reason, "step 1: a person is in my way (6.0 m from the goal)");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn waiting_broken_by_short_moves_is_asked_about_unless_the_robot_gets_closer() {
+    let p = ExecutorParams::default();
+    // Stopped for a person, then a short creep that gets nowhere, and again:
+    // asked once the first wait is PERSON_WAIT_S old.
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    let mut t = 0.0;
+    while !m.is_awaiting() {
+        assert!(t < 2.0 * PERSON_WAIT_S, "never asked");
+        let status = if (t as u32).is_multiple_of(4) { DriveStatus::Moving } else { DriveStatus::Waiting };
+        cycle(&mut m, &p, at(t, 0.0, 0.0, 0.0), blind(move |_| driven(status, 0.1, 6.0)));
+        t += 0.5;
+    }
+    assert!(t - 0.5 >= PERSON_WAIT_S, "asked at {t}");
+    // The same, but each move brings the robot 0.2 m closer: it is getting
+    // somewhere, and waits on without asking.
+    let mut m = mission(vec![mv(60.0, 0.0)]);
+    let mut t = 0.0;
+    let mut left = 60.0;
+    while t < 3.0 * PERSON_WAIT_S {
+        let moving = (t as u32).is_multiple_of(4);
+        if moving {
+            left -= 0.1;
+        }
+        let status = if moving { DriveStatus::Moving } else { DriveStatus::Waiting };
+        cycle(&mut m, &p, at(t, 60.0 - left, 0.0, 0.0), blind(move |_| driven(status, 0.1, left)));
         assert!(!m.is_awaiting(), "asked at {t}");
         t += 0.5;
     }
