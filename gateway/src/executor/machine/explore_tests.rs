@@ -5,27 +5,46 @@ use std::f64::consts::{FRAC_PI_2, FRAC_PI_6};
 use super::super::test_support::*;
 use super::*;
 
+/// Cycles `m` on frames 0.2 s apart, numbered from `first`, every drive
+/// reached at once, until it asks (within `limit` frames); the robot faces
+/// the heading `turned` gives after each goal asked for (from the goal and
+/// the heading before). Returns every MOVE goal asked for, in order.
+fn search_until_asked(
+    m: &mut Mission,
+    p: &ExecutorParams,
+    first: u32,
+    limit: u32,
+    mut turned: impl FnMut(&MoveQuery, f64) -> f64,
+) -> Vec<MoveQuery> {
+    let (mut goals, mut heading) = (Vec::new(), 0.0);
+    for frame in first.. {
+        if m.is_awaiting() {
+            return goals;
+        }
+        assert!(frame < limit, "exploration is bounded");
+        let (cmd, asked) = cycle(
+            m,
+            p,
+            at(f64::from(frame) * 0.2, 0.0, 0.0, heading),
+            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
+        );
+        assert_eq!(cmd.twist, Twist::ZERO, "a goal reached at once leaves nothing to drive");
+        for q in asked.into_iter().filter_map(|r| match r {
+            Request::MoveGoal(q) => Some(q),
+            _ => None,
+        }) {
+            heading = turned(&q, heading);
+            goals.push(q);
+        }
+    }
+    unreachable!()
+}
+
 #[test]
 fn an_unseen_target_is_searched_for_boundedly_then_asked_about() {
     let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
     let mut m = mission(vec![find(1, "bicycle")]);
-    let mut turns = Vec::new();
-    let mut frame = 0;
-    while !m.is_awaiting() {
-        assert!(frame < 200, "exploration is bounded");
-        let (cmd, asked) = cycle(
-            &mut m,
-            &p,
-            at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0),
-            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
-        );
-        assert_eq!(cmd.twist, Twist::ZERO);
-        turns.extend(asked.into_iter().filter_map(|r| match r {
-            Request::MoveGoal(q) => Some(q),
-            _ => None,
-        }));
-        frame += 1;
-    }
+    let turns = search_until_asked(&mut m, &p, 0, 200, |_, h| h);
     // Three turns of a look-around from where it began, a search leg, then
     // the fan about the way ahead: one and two turns left, one and two right.
     let turns_of_30: Vec<f64> = turns.iter().map(|q| q.yaw / FRAC_PI_6).collect();
@@ -142,31 +161,11 @@ fn the_look_after_a_search_leg_fans_about_the_way_ahead_and_the_next_leg_keeps_i
     // look's origin, not where the last leg or the fan ended facing.
     let p = ExecutorParams { unseen_frames: 2, look_frames: 1, search_legs: 2, ..Default::default() };
     let mut m = mission(vec![find(1, "bicycle")]);
-    let mut heading = 0.0;
-    let mut legs = Vec::new();
-    let mut frame = 0;
-    while !m.is_awaiting() {
-        assert!(frame < 400, "exploration is bounded");
-        let (_, asked) = cycle(
-            &mut m,
-            &p,
-            at(f64::from(frame) * 0.2, 0.0, 0.0, heading),
-            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
-        );
-        for q in asked.into_iter().filter_map(|r| match r {
-            Request::MoveGoal(q) => Some(q),
-            _ => None,
-        }) {
-            if q.f_dist > 0.0 {
-                legs.push(wrap(q.anchor.theta + q.yaw));
-                heading = wrap(q.anchor.theta + q.yaw + 1.0);
-            } else {
-                // The robot turns to each scan heading at once.
-                heading = wrap(q.anchor.theta + q.yaw);
-            }
-        }
-        frame += 1;
-    }
+    let goals = search_until_asked(&mut m, &p, 0, 400, |q, _| {
+        // The robot turns to each scan heading at once; a leg ends a radian left.
+        wrap(q.anchor.theta + q.yaw + if q.f_dist > 0.0 { 1.0 } else { 0.0 })
+    });
+    let legs: Vec<f64> = goals.iter().filter(|q| q.f_dist > 0.0).map(|q| wrap(q.anchor.theta + q.yaw)).collect();
     assert_eq!(legs.len(), 2, "{legs:?}");
     assert!(legs.iter().all(|h| h.abs() < 1e-9), "every leg along the search's heading: {legs:?}");
 }
@@ -181,22 +180,8 @@ fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
     let glimpse = Vector3::new(8.0 * FRAC_PI_6.cos(), 8.0 * FRAC_PI_6.sin(), 0.5);
     let mut m = mission(vec![find(56, "chair")]);
     cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), tally(move |_| glimpse, 0, vec![chair(70.0, 95.0)]));
-    let mut legs = Vec::new();
-    let mut frame = 1;
-    while !m.is_awaiting() {
-        assert!(frame < 300, "exploration is bounded");
-        let (_, asked) = cycle(
-            &mut m,
-            &p,
-            at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0),
-            blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)),
-        );
-        legs.extend(asked.into_iter().filter_map(|r| match r {
-            Request::MoveGoal(q) if q.f_dist > 0.0 => Some(q),
-            _ => None,
-        }));
-        frame += 1;
-    }
+    let legs: Vec<MoveQuery> =
+        search_until_asked(&mut m, &p, 1, 300, |_, h| h).into_iter().filter(|q| q.f_dist > 0.0).collect();
     assert_eq!(legs.len(), 1, "{legs:?}");
     assert!((legs[0].yaw - FRAC_PI_6).abs() < 1e-9, "{:?}", legs[0]);
     let room = 8.0 - p.default_d_s;
