@@ -35,6 +35,27 @@ pub fn tool(name: &str) -> PathBuf {
     path
 }
 
+/// A reader's bash running `script` in `dir`, as someone following the
+/// docs has it: the deployment's binaries (`bin`) and grpcurl first on
+/// PATH, and none of this machine's `VLNAV_*` variables (the docs set what
+/// they need). Used by the tests that run the docs' commands word for word.
+pub fn reader_shell(script: &str, dir: &Path, bin: &Path) -> Command {
+    let path = format!(
+        "{}:{}:{}",
+        bin.display(),
+        tool("grpcurl").parent().expect(".venv/bin").display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let mut cmd = Command::new("bash");
+    for (name, _) in std::env::vars_os() {
+        if name.to_string_lossy().starts_with("VLNAV_") {
+            cmd.env_remove(name);
+        }
+    }
+    cmd.arg("-c").arg(script).current_dir(dir).env("PATH", path);
+    cmd
+}
+
 /// Points the services at the repository's models directory unless set.
 pub fn use_repo_models() {
     if std::env::var_os("VLNAV_MODELS_DIR").is_none() {

@@ -27,7 +27,7 @@ use std::process::Command;
 use std::time::Duration;
 
 use vlnav_e2e::procs::{DEPLOYED, binaries};
-use vlnav_e2e::{TestStack, repo_root, tool};
+use vlnav_e2e::{TestStack, reader_shell, repo_root};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Mode {
@@ -152,8 +152,6 @@ async fn the_documented_commands_run_against_a_stack() {
     let blocks: Vec<Block> = marked_blocks().into_iter().filter(|b| b.mode == Mode::Run).collect();
     assert!(!blocks.is_empty(), "no runnable block found");
     let bin = binaries().expect("the binaries build");
-    // The README's client, where `make test` installs it.
-    let tools = tool("grpcurl").parent().unwrap().to_path_buf();
     let home = tempfile::tempdir().unwrap();
     let dir = home.path().to_path_buf();
     std::os::unix::fs::symlink(repo_root().join("models"), dir.join("models")).unwrap();
@@ -188,24 +186,9 @@ async fn the_documented_commands_run_against_a_stack() {
             index.push((block, cmd, shown));
         }
     }
-    let path = format!("{}:{}", bin.display(), tools.display());
-    let path = format!("{path}:{}", std::env::var("PATH").unwrap_or_default());
     let gateway = t.uri();
     let run = tokio::task::spawn_blocking(move || {
-        let mut bash = Command::new("bash");
-        // Only the variables a reader following the docs would have set.
-        for (name, _) in std::env::vars_os() {
-            if name.to_string_lossy().starts_with("VLNAV_") {
-                bash.env_remove(name);
-            }
-        }
-        bash.arg("-c")
-            .arg(script)
-            .current_dir(&dir)
-            .env("PATH", path)
-            .env("VLNAV_GATEWAY", gateway)
-            .output()
-            .expect("bash runs")
+        reader_shell(&script, &dir, &bin).env("VLNAV_GATEWAY", gateway).output().expect("bash runs")
     });
     let out = tokio::time::timeout(Duration::from_secs(300), run)
         .await

@@ -30,7 +30,7 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 use vlnav_e2e::procs::binaries;
 use vlnav_e2e::ros2::{FakeA300, Proc, inside_own_network_namespace, spawn};
-use vlnav_e2e::{repo_root, tool};
+use vlnav_e2e::{reader_shell, repo_root, tool};
 
 const TEST: &str = "the_readme_connects_a_ros2_robot_over_tls_by_a_second_address";
 const SECTION: &str = "## Connecting a real robot";
@@ -91,25 +91,8 @@ fn section_commands() -> Vec<String> {
 /// binaries and grpcurl on PATH, none of this machine's `VLNAV_*`
 /// variables, `GATEWAY_HOST` set as the README asks.
 fn shell(dir: &Path, line: &str, bin: &Path) -> Command {
-    let path = format!(
-        "{}:{}:{}",
-        bin.display(),
-        tool("grpcurl").parent().expect(".venv/bin").display(),
-        std::env::var("PATH").unwrap_or_default()
-    );
-    let mut cmd = Command::new("bash");
-    for (name, _) in std::env::vars_os() {
-        if name.to_string_lossy().starts_with("VLNAV_") {
-            cmd.env_remove(name);
-        }
-    }
-    cmd.arg("-c")
-        .arg(line)
-        .current_dir(dir)
-        .env("PATH", path)
-        .env("GATEWAY_HOST", GATEWAY_HOST)
-        .env("ROS_DOMAIN_ID", DOMAIN_ID.to_string())
-        .env("RUST_LOG", "warn");
+    let mut cmd = reader_shell(line, dir, bin);
+    cmd.env("GATEWAY_HOST", GATEWAY_HOST).env("ROS_DOMAIN_ID", DOMAIN_ID.to_string()).env("RUST_LOG", "warn");
     cmd
 }
 
