@@ -69,6 +69,11 @@ impl Mission {
             (plan.distance_to_goal, PROGRESS_M)
         };
         let Some(step) = self.step.as_mut() else { return self.hold() };
+        // Closer than the best so far: a new best, and a wait counts afresh.
+        let closer = step.progress.is_some_and(|best| measure < best.0 - step_m);
+        if closer {
+            step.waiting_since = None;
+        }
         if plan.status == DriveStatus::Waiting {
             // Waiting for a person is no lack of progress: both clocks
             // restart, and the wait has a bound of its own. The wait is
@@ -80,11 +85,7 @@ impl Mission {
             // offset the tests sometimes start at).
             step.stuck_since = None;
             if let Some(best) = &mut step.progress {
-                if measure < best.0 - step_m {
-                    best.0 = measure;
-                    step.waiting_since = None;
-                }
-                best.1 = stamp;
+                *best = (if closer { measure } else { best.0 }, stamp);
             }
             let waiting_since = *step.waiting_since.get_or_insert(stamp);
             if stamp - waiting_since < PERSON_WAIT_S {
@@ -102,9 +103,8 @@ impl Mission {
         }
         let since = match &mut step.progress {
             Some(best) => {
-                if measure < best.0 - step_m {
+                if closer {
                     *best = (measure, stamp);
-                    step.waiting_since = None;
                 }
                 best.1
             }
