@@ -272,6 +272,10 @@ impl Session<'_> {
                     Ok(_) => {}
                 }
             };
+            // Free: the gateway says no mission drives this robot. Read off the
+            // answer as it came, dropped or not, so that time passes while
+            // commands are refused (the deadman must be able to trip).
+            let free = answer.idle && answer.mission_id.is_empty() && hooks.idle_gate.is_none();
             last.take(gov, answer);
             gov.set_estop(hooks.estop.is_engaged());
             let (out, verdict) = gov.output(stamp);
@@ -288,7 +292,6 @@ impl Session<'_> {
             // who walked on while the robot waited changed Case 2's course in
             // the demo hall). A harness that holds the robot at an idle gate
             // chooses that frame itself.
-            let free = last.idle && last.mission.is_empty() && hooks.idle_gate.is_none();
             if !free {
                 robot.step(out);
             }
