@@ -113,11 +113,18 @@ pub struct FakeA300 {
 
 impl FakeA300 {
     /// Starts it under `namespace` in DDS domain `domain_id`, a wall
-    /// `wall_x_m` ahead of its start in its camera's view.
+    /// `wall_x_m` ahead of its start in its camera's view, as on Jazzy
+    /// (`geometry_msgs/TwistStamped` on `cmd_vel`).
     pub fn start(namespace: &str, wall_x_m: f64, domain_id: u32) -> Self {
+        Self::start_as(namespace, wall_x_m, domain_id, "jazzy")
+    }
+
+    /// As [`FakeA300::start`], with the platform's `cmd_vel` of `distro`:
+    /// `jazzy` (TwistStamped) or `humble` (Twist, as a Husky A200 on Humble).
+    pub fn start_as(namespace: &str, wall_x_m: f64, domain_id: u32, distro: &str) -> Self {
         let mut a300 = Command::new(ros2_python());
         a300.arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/ros2_robot/fake_a300.py"))
-            .args(["--namespace", namespace, "--wall-x", &wall_x_m.to_string()])
+            .args(["--namespace", namespace, "--wall-x", &wall_x_m.to_string(), "--distro", distro])
             .env("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
             .env("ROS_DOMAIN_ID", domain_id.to_string())
             .env("PYTHONUNBUFFERED", "1")

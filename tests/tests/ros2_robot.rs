@@ -15,6 +15,9 @@
 //!   the deadman timeout and one control cycle; one that is killed leaves
 //!   the robot at zero.
 //!
+//! A second test drives a Husky A200 on Humble (`--ros-distro humble`):
+//! `geometry_msgs/Twist` on `/a200_0001/cmd_vel`, held at zero while idle.
+//!
 //! DDS finds peers by multicast, so the test runs itself again inside its own
 //! user and network namespace (`unshare -rn`) that has only loopback, with a
 //! multicast route on it: nothing it sends leaves this machine.
@@ -46,12 +49,105 @@ const TRANSPORT_SLACK_S: f64 = 0.15;
 /// the tick runs).
 const TICK_SLACK_S: f64 = 1.0 / CONTROL_HZ;
 
+/// One test's stack at a time: each is a whole `vlnav up` with realistic
+/// perception, and the first checks stop latencies on a 2-core machine.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 #[test]
 fn a_mission_drives_a_ros2_robot_and_its_estop_and_the_deadman_stop_it() {
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     if inside_own_network_namespace(TEST) {
         let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
         rt.block_on(inside_the_namespace());
     }
+}
+
+const HUMBLE_TEST: &str = "a_mission_drives_an_a200_on_humble_with_twist_on_cmd_vel";
+
+/// `--ros-distro humble`: a Husky A200 on Humble takes `geometry_msgs/Twist`
+/// on `cmd_vel`. The fake robot is the same rclpy (Jazzy's, the one on PyPI)
+/// subscribing Twist: the message and its DDS type are the same on both
+/// distributions, so this checks the driver's Humble mode on the wire, not
+/// a Humble installation.
+#[test]
+fn a_mission_drives_an_a200_on_humble_with_twist_on_cmd_vel() {
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    if inside_own_network_namespace(HUMBLE_TEST) {
+        let rt = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+        rt.block_on(humble_inside_the_namespace());
+    }
+}
+
+async fn humble_inside_the_namespace() {
+    const A200: &str = "a200_0001";
+    let bin = binaries().expect("the binaries were built outside");
+    let data = tempfile::tempdir().unwrap();
+    let models = std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("models"));
+    let gateway_addr = "127.0.0.1:50051";
+    let mut up = Command::new(bin.join("vlnav"));
+    up.args(["up", "--no-robot", "--robot-id", ROBOT, "--perception", "realistic", "--listen", gateway_addr])
+        .arg("--data-dir")
+        .arg(data.path())
+        .env("VLNAV_MODELS_DIR", &models)
+        .env("VLNAV_LIVE_VIEW", "off")
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    let _gateway = spawn("vlnav up --no-robot", up);
+    let security = data.path().join("security");
+    let (ca, cert, key) = (
+        security.join("ca.pem"),
+        security.join(format!("robot-{ROBOT}.pem")),
+        security.join(format!("robot-{ROBOT}-key.pem")),
+    );
+    let token = wait_for("vlnav up writes its credentials", Duration::from_secs(120), async || {
+        let t = std::fs::read_to_string(security.join("operator.token")).ok()?;
+        (key.exists() && std::net::TcpStream::connect(gateway_addr).is_ok()).then(|| t.trim().to_string())
+    })
+    .await;
+    let tls = ClientTlsArgs { tls_ca: Some(ca.clone()), tls_client_cert: None, tls_client_key: None };
+    let operator = ClientSecurity::new(tls.load().unwrap(), Some(token));
+    let channel = channel_with(&format!("https://{gateway_addr}"), &operator).unwrap();
+    let mut fleet = FleetServiceClient::new(channel.clone());
+    let mut missions = MissionServiceClient::new(channel);
+
+    let robot = FakeA300::start_as(A200, 12.0, 23, "humble");
+    let log = robot.log.clone();
+    let mut edge = Command::new(bin.join("vlnav-edge"));
+    edge.args(["--driver", "ros2", "--ros-distro", "humble", "--ros-namespace", A200, "--robot-id", ROBOT])
+        .args(["--gateway", &format!("https://{gateway_addr}")])
+        .arg("--tls-ca")
+        .arg(&ca)
+        .arg("--tls-client-cert")
+        .arg(&cert)
+        .arg("--tls-client-key")
+        .arg(&key)
+        .env("ROS_DOMAIN_ID", "23")
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit());
+    let _edge = spawn("vlnav-edge --driver ros2 --ros-distro humble", edge);
+
+    let info =
+        wait_for("the Humble robot attached, with frames and its battery", Duration::from_secs(60), async || {
+            robot_info(&mut fleet).await.filter(|r| r.connected && r.frames_received > 5 && r.battery.is_some())
+        })
+        .await;
+    assert_eq!(info.driver, "ros2");
+    let idle = log.commands();
+    assert!(!idle.is_empty() && idle.iter().all(|c| !c.moves()), "Twist held at zero while idle: {idle:?}");
+
+    missions.submit_mission(submit("move 8 m ahead")).await.expect("SubmitMission");
+    wait_for("the Humble robot driven 0.5 m by the mission", Duration::from_secs(90), async || {
+        (log.odom_x() > 0.5).then_some(())
+    })
+    .await;
+    let cmds = log.commands();
+    let moving: Vec<&Cmd> = cmds.iter().filter(|c| c.moves()).collect();
+    assert!(!moving.is_empty(), "the robot received motion");
+    assert!(moving.iter().all(|c| c.linear > 0.0 && c.linear <= 1.0 + 1e-9), "forward within the limit: {moving:?}");
+    // Twist has no header: the robot received no stamp.
+    assert!(cmds.iter().all(|c| c.stamp.is_nan()), "a Humble cmd_vel carries no stamp: {:?}", cmds.first());
 }
 
 async fn robot_info(fleet: &mut FleetServiceClient<TracedChannel>) -> Option<RobotInfo> {

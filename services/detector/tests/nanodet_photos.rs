@@ -112,10 +112,13 @@ async fn motorcycle_depth_from_the_stereo_ground_truth() {
     let index = zip.index_for_name("arr_0.npy").expect("arr_0.npy in the archive");
     let entry = zip.by_index_raw(index).unwrap();
     let mut npy = Vec::new();
-    match entry.compression() {
-        zip::CompressionMethod::Stored => entry.take(u64::MAX).read_to_end(&mut npy),
-        zip::CompressionMethod::Deflated => flate2::read::DeflateDecoder::new(entry).read_to_end(&mut npy),
-        other => panic!("arr_0.npy is compressed with {other:?}; expected stored or deflated"),
+    let method = entry.compression();
+    if method == zip::CompressionMethod::STORE {
+        entry.take(u64::MAX).read_to_end(&mut npy)
+    } else if method == zip::CompressionMethod::DEFLATE {
+        flate2::read::DeflateDecoder::new(entry).read_to_end(&mut npy)
+    } else {
+        panic!("arr_0.npy is compressed with {method:?}; expected stored or deflated")
     }
     .unwrap();
     let (shape, disparity) = parse_npy_f32(&npy);
