@@ -149,6 +149,46 @@ impl Stack {
         m["missionId"].as_str().expect("missionId").to_string()
     }
 
+    /// WatchMission with grpcurl until the mission ends; what it printed. A
+    /// mission that stops to ask (AWAITING_CLARIFICATION) never ends by
+    /// itself: GetMission, polled meanwhile, fails the test at once with the
+    /// question, the events so far and the containers' logs.
+    fn watch_to_the_end(&self, id: &str, limit: Duration) -> String {
+        let out = tempfile::NamedTempFile::new().expect("temp file");
+        let mut watch = Command::new(tool("grpcurl"))
+            .args(self.auth())
+            .args(["-max-time", &limit.as_secs().to_string(), "-d", &serde_json::json!({"mission_id": id}).to_string()])
+            .args([self.addr().as_str(), "vlnav.v1.MissionService/WatchMission"])
+            .stdout(out.reopen().expect("temp file"))
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .expect("grpcurl runs");
+        let printed = || std::fs::read_to_string(out.path()).unwrap_or_default();
+        let start = Instant::now();
+        loop {
+            if let Some(status) = watch.try_wait().expect("grpcurl") {
+                let mut err = String::new();
+                if let Some(mut e) = watch.stderr.take() {
+                    let _ = std::io::Read::read_to_string(&mut e, &mut err);
+                }
+                assert!(status.success(), "WatchMission: {status} {err}\nprinted:\n{}\n{}", printed(), self.logs());
+                return printed();
+            }
+            let m = self.mission(id);
+            if m["state"] == "MISSION_STATE_AWAITING_CLARIFICATION" {
+                let _ = watch.kill();
+                let _ = watch.wait();
+                panic!("the mission asked: {}\nevents so far:\n{}\n{}", m["clarification"], printed(), self.logs());
+            }
+            if start.elapsed() > limit + Duration::from_secs(10) {
+                let _ = watch.kill();
+                let _ = watch.wait();
+                panic!("the mission did not end within {limit:?}: {m}\nevents so far:\n{}\n{}", printed(), self.logs());
+            }
+            std::thread::sleep(Duration::from_secs(2));
+        }
+    }
+
     fn mission(&self, id: &str) -> Value {
         self.call("vlnav.v1.MissionService/GetMission", &serde_json::json!({"mission_id": id}))
     }
@@ -335,16 +375,7 @@ fn the_stack_in_containers_runs_case_2_and_rides_out_a_killed_stage() {
     // 3. Case 2 through the published port, watched with grpcurl to the end.
     let t = Instant::now();
     let id = stack.submit(CASE_2);
-    let watched = stack
-        .grpcurl(&[
-            "-max-time",
-            "500",
-            "-d",
-            &serde_json::json!({"mission_id": id}).to_string(),
-            &stack.addr(),
-            "vlnav.v1.MissionService/WatchMission",
-        ])
-        .unwrap_or_else(|e| panic!("WatchMission: {e}\n{}", stack.logs()));
+    let watched = stack.watch_to_the_end(&id, Duration::from_secs(500));
     let events = json_objects(&watched);
     let last = events.last().expect("mission events");
     assert_eq!(last["finished"]["state"], "MISSION_STATE_SUCCEEDED", "{last}\n{}", stack.logs());

@@ -16,11 +16,17 @@ const PROGRESS_RAD: f64 = 0.05;
 /// tolerance has arrived: it settles instead of asking, m.
 const SETTLE_M: f64 = 0.25;
 /// How long the robot waits for a person in its way (from the local
-/// planner's first WAITING since it last got closer to the goal) before it
+/// planner's first WAITING since it last got closer to the goal or moved
+/// on) before it
 /// asks, s of sensor time: people step
 /// aside or walk on within seconds; one who stays is asked about
 /// (docs/design.md §4, "People in the way").
 const PERSON_WAIT_S: f64 = 30.0;
+/// A wait counts afresh once the robot is this far from where it began,
+/// m: a robot going round a person or a no-go patch moves on without
+/// getting closer to its goal; one that creeps and is stopped again beside
+/// a statue stays put.
+const WAIT_MOVED_M: f64 = 0.5;
 
 /// Where a MOVE starts from: the robot's position, facing the course of the
 /// MOVE or FIND reached just before (if any), else its own heading.
@@ -71,14 +77,16 @@ impl Mission {
         let Some(step) = self.step.as_mut() else { return self.hold() };
         // Closer than the best so far: a new best, and a wait counts afresh.
         let closer = step.progress.is_some_and(|best| measure < best.0 - step_m);
-        if closer {
+        let here = Vector2::new(pose.x, pose.y);
+        let moved_on = step.waiting_since.is_some_and(|(_, at)| (here - at).norm() >= WAIT_MOVED_M);
+        if closer || moved_on {
             step.waiting_since = None;
         }
         if plan.status == DriveStatus::Waiting {
             // Waiting for a person is no lack of progress: both clocks
             // restart, and the wait has a bound of its own. The wait is
             // counted from the first WAITING since the robot last got
-            // closer, through any frames between: a robot that gave way,
+            // closer or moved WAIT_MOVED_M on, through any frames between: a robot that gave way,
             // crept forward and was stopped again, over and over beside a
             // statue the camera took for a person, never got closer for
             // minutes and never asked (the demo hall, Case 2, on a frame
@@ -87,7 +95,7 @@ impl Mission {
             if let Some(best) = &mut step.progress {
                 *best = (if closer { measure } else { best.0 }, stamp);
             }
-            let waiting_since = *step.waiting_since.get_or_insert(stamp);
+            let (waiting_since, _) = *step.waiting_since.get_or_insert((stamp, here));
             if stamp - waiting_since < PERSON_WAIT_S {
                 return self.done(plan.cmd, None);
             }

@@ -280,6 +280,39 @@ fn waiting_broken_by_short_moves_is_asked_about_unless_the_robot_gets_closer() {
 }
 
 #[test]
+fn waiting_while_going_round_is_not_asked_about_but_waiting_in_place_is() {
+    let p = ExecutorParams::default();
+    // Going round something: stopped for a person now and then, moving on
+    // sideways (0.1 m a second) without getting closer to the goal. Each
+    // wait counts afresh once the robot is WAIT_MOVED_M from where it began.
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    let mut t = 0.0;
+    let mut y = 0.0;
+    while t < 3.0 * PERSON_WAIT_S {
+        let moving = (t as u32).is_multiple_of(2);
+        if moving {
+            y += 0.05;
+        }
+        let status = if moving { DriveStatus::Moving } else { DriveStatus::Waiting };
+        cycle(&mut m, &p, at(t, 0.0, y, 0.0), blind(move |_| driven(status, 0.1, 6.0)));
+        assert!(!m.is_awaiting(), "asked at {t}, {y:.2} m on");
+        t += 0.5;
+    }
+    // The same stops, the robot staying within WAIT_MOVED_M: asked.
+    let mut m = mission(vec![mv(6.0, 0.0)]);
+    let mut t = 0.0;
+    while !m.is_awaiting() {
+        assert!(t < 2.0 * PERSON_WAIT_S, "never asked");
+        let moving = (t as u32).is_multiple_of(2);
+        let status = if moving { DriveStatus::Moving } else { DriveStatus::Waiting };
+        let y = 0.2 * (t / 4.0).sin();
+        cycle(&mut m, &p, at(t, 0.0, y, 0.0), blind(move |_| driven(status, 0.1, 6.0)));
+        t += 0.5;
+    }
+    assert!(t - 0.5 >= PERSON_WAIT_S, "asked at {t}");
+}
+
+#[test]
 fn an_engaged_emergency_stop_pauses_the_mission_and_its_release_resumes_it() {
     let p = ExecutorParams::default();
     let mut m = mission(vec![mv(6.0, 0.0)]);

@@ -218,8 +218,9 @@ struct Active {
     progress: Option<(f64, f64)>,
     /// Since when the local planner has said Blocked or NoProgress without a break.
     stuck_since: Option<f64>,
-    /// Since when the local planner has said Waiting (for a person) without a break.
-    waiting_since: Option<f64>,
+    /// Since when, and where, the local planner first said Waiting (for a
+    /// person) since the robot last got closer or moved on (drive.rs).
+    waiting_since: Option<(f64, nalgebra::Vector2<f64>)>,
     run: StepRun,
 }
 
