@@ -28,7 +28,7 @@ use std::time::Duration;
 
 use vlnav_e2e::procs::binaries;
 use vlnav_e2e::repo_root;
-use vlnav_e2e::ros2::{Cmd, FakeA300, inside_own_network_namespace, spawn, wait_for, wall_now};
+use vlnav_e2e::ros2::{Cmd, FakeA300, Proc, inside_own_network_namespace, spawn, wait_for, wall_now};
 use vlnav_proto::v1::fleet_service_client::FleetServiceClient;
 use vlnav_proto::v1::mission_service_client::MissionServiceClient;
 use vlnav_proto::v1::submit_mission_request::Instruction;
@@ -80,53 +80,12 @@ fn a_mission_drives_an_a200_on_humble_with_twist_on_cmd_vel() {
 
 async fn humble_inside_the_namespace() {
     const A200: &str = "a200_0001";
-    let bin = binaries().expect("the binaries were built outside");
-    let data = tempfile::tempdir().unwrap();
-    let models = std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("models"));
-    let gateway_addr = "127.0.0.1:50051";
-    let mut up = Command::new(bin.join("vlnav"));
-    up.args(["up", "--no-robot", "--robot-id", ROBOT, "--perception", "realistic", "--listen", gateway_addr])
-        .arg("--data-dir")
-        .arg(data.path())
-        .env("VLNAV_MODELS_DIR", &models)
-        .env("VLNAV_LIVE_VIEW", "off")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit());
-    let _gateway = spawn("vlnav up --no-robot", up);
-    let security = data.path().join("security");
-    let (ca, cert, key) = (
-        security.join("ca.pem"),
-        security.join(format!("robot-{ROBOT}.pem")),
-        security.join(format!("robot-{ROBOT}-key.pem")),
-    );
-    let token = wait_for("vlnav up writes its credentials", Duration::from_secs(120), async || {
-        let t = std::fs::read_to_string(security.join("operator.token")).ok()?;
-        (key.exists() && std::net::TcpStream::connect(gateway_addr).is_ok()).then(|| t.trim().to_string())
-    })
-    .await;
-    let tls = ClientTlsArgs { tls_ca: Some(ca.clone()), tls_client_cert: None, tls_client_key: None };
-    let operator = ClientSecurity::new(tls.load().unwrap(), Some(token));
-    let channel = channel_with(&format!("https://{gateway_addr}"), &operator).unwrap();
-    let mut fleet = FleetServiceClient::new(channel.clone());
-    let mut missions = MissionServiceClient::new(channel);
+    let stack = Stack::start().await;
+    let (mut fleet, mut missions) = (stack.fleet.clone(), stack.missions.clone());
 
     let robot = FakeA300::start_as(A200, 12.0, 23, "humble");
     let log = robot.log.clone();
-    let mut edge = Command::new(bin.join("vlnav-edge"));
-    edge.args(["--driver", "ros2", "--ros-distro", "humble", "--ros-namespace", A200, "--robot-id", ROBOT])
-        .args(["--gateway", &format!("https://{gateway_addr}")])
-        .arg("--tls-ca")
-        .arg(&ca)
-        .arg("--tls-client-cert")
-        .arg(&cert)
-        .arg("--tls-client-key")
-        .arg(&key)
-        .env("ROS_DOMAIN_ID", "23")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit());
-    let _edge = spawn("vlnav-edge --driver ros2 --ros-distro humble", edge);
+    let _edge = stack.edge(A200, 23, &["--ros-distro", "humble"]);
 
     let info =
         wait_for("the Humble robot attached, with frames and its battery", Duration::from_secs(60), async || {
@@ -150,6 +109,86 @@ async fn humble_inside_the_namespace() {
     assert!(cmds.iter().all(|c| c.stamp.is_nan()), "a Humble cmd_vel carries no stamp: {:?}", cmds.first());
 }
 
+/// `vlnav up --no-robot` in the test's network namespace (every port is
+/// free there), with realistic perception: its colour segmenter reads a real
+/// camera's frames (the oracle's needs the simulator's label images; the
+/// simulated detector, lacking them too, is skipped and the robot drives
+/// without person boxes). Operator clients, and the robot's credentials.
+struct Stack {
+    bin: PathBuf,
+    gateway: Proc,
+    _data: tempfile::TempDir,
+    ca: PathBuf,
+    cert: PathBuf,
+    key: PathBuf,
+    fleet: FleetServiceClient<TracedChannel>,
+    missions: MissionServiceClient<TracedChannel>,
+}
+
+const GATEWAY_ADDR: &str = "127.0.0.1:50051";
+
+impl Stack {
+    async fn start() -> Stack {
+        let bin = binaries().expect("the binaries were built outside");
+        let data = tempfile::tempdir().unwrap();
+        let models =
+            std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("models"));
+        assert!(
+            models.join("minilm").exists(),
+            "models are missing in {}: run deploy/fetch-models.sh",
+            models.display()
+        );
+        let mut up = Command::new(bin.join("vlnav"));
+        up.args(["up", "--no-robot", "--robot-id", ROBOT, "--perception", "realistic", "--listen", GATEWAY_ADDR])
+            .arg("--data-dir")
+            .arg(data.path())
+            .env("VLNAV_MODELS_DIR", &models)
+            .env("VLNAV_LIVE_VIEW", "off")
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit());
+        let gateway = spawn("vlnav up --no-robot", up);
+        let security = data.path().join("security");
+        let (ca, cert, key) = (
+            security.join("ca.pem"),
+            security.join(format!("robot-{ROBOT}.pem")),
+            security.join(format!("robot-{ROBOT}-key.pem")),
+        );
+        let token = wait_for("vlnav up writes its credentials", Duration::from_secs(120), async || {
+            let t = std::fs::read_to_string(security.join("operator.token")).ok()?;
+            (key.exists() && std::net::TcpStream::connect(GATEWAY_ADDR).is_ok()).then(|| t.trim().to_string())
+        })
+        .await;
+        let tls = ClientTlsArgs { tls_ca: Some(ca.clone()), tls_client_cert: None, tls_client_key: None };
+        let operator = ClientSecurity::new(tls.load().unwrap(), Some(token));
+        let channel = channel_with(&format!("https://{GATEWAY_ADDR}"), &operator).unwrap();
+        let fleet = FleetServiceClient::new(channel.clone());
+        let missions = MissionServiceClient::new(channel);
+        Stack { bin, gateway, _data: data, ca, cert, key, fleet, missions }
+    }
+
+    /// `vlnav-edge --driver ros2` for the robot under `namespace` on DDS
+    /// domain `domain_id`, as a user runs it on the robot's computer, with
+    /// `extra` flags.
+    fn edge(&self, namespace: &str, domain_id: u32, extra: &[&str]) -> Proc {
+        let mut edge = Command::new(self.bin.join("vlnav-edge"));
+        edge.args(["--driver", "ros2", "--ros-namespace", namespace, "--robot-id", ROBOT])
+            .args(["--gateway", &format!("https://{GATEWAY_ADDR}")])
+            .arg("--tls-ca")
+            .arg(&self.ca)
+            .arg("--tls-client-cert")
+            .arg(&self.cert)
+            .arg("--tls-client-key")
+            .arg(&self.key)
+            .args(extra)
+            .env("ROS_DOMAIN_ID", domain_id.to_string())
+            .env("RUST_LOG", "warn")
+            .stdout(Stdio::null())
+            .stderr(Stdio::inherit());
+        spawn(&format!("vlnav-edge --driver ros2 {}", extra.join(" ")), edge)
+    }
+}
+
 async fn robot_info(fleet: &mut FleetServiceClient<TracedChannel>) -> Option<RobotInfo> {
     let robots = fleet.list_robots(ListRobotsRequest {}).await.ok()?.into_inner().robots;
     robots.into_iter().find(|r| r.robot_id == ROBOT)
@@ -160,63 +199,18 @@ fn submit(text: &str) -> SubmitMissionRequest {
 }
 
 async fn inside_the_namespace() {
-    let bin = binaries().expect("the binaries were built outside");
-    let data = tempfile::tempdir().unwrap();
-    let models = std::env::var_os("VLNAV_MODELS_DIR").map(PathBuf::from).unwrap_or_else(|| repo_root().join("models"));
-    assert!(models.join("minilm").exists(), "models are missing in {}: run deploy/fetch-models.sh", models.display());
-
-    // 1. The stack, without a robot. A fresh network namespace has every port free.
-    //    Realistic perception: its colour segmenter reads a real camera's frames (the
-    //    oracle's needs the simulator's label images; the simulated detector, lacking
-    //    them too, is skipped and the robot drives without person boxes).
-    let gateway_addr = "127.0.0.1:50051";
-    let mut up = Command::new(bin.join("vlnav"));
-    up.args(["up", "--no-robot", "--robot-id", ROBOT, "--perception", "realistic", "--listen", gateway_addr])
-        .arg("--data-dir")
-        .arg(data.path())
-        .env("VLNAV_MODELS_DIR", &models)
-        .env("VLNAV_LIVE_VIEW", "off")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit());
-    let mut gateway = spawn("vlnav up --no-robot", up);
-    let security = data.path().join("security");
-    let (ca, cert, key) = (
-        security.join("ca.pem"),
-        security.join(format!("robot-{ROBOT}.pem")),
-        security.join(format!("robot-{ROBOT}-key.pem")),
-    );
-    let token = wait_for("vlnav up writes its credentials", Duration::from_secs(120), async || {
-        let t = std::fs::read_to_string(security.join("operator.token")).ok()?;
-        (key.exists() && std::net::TcpStream::connect(gateway_addr).is_ok()).then(|| t.trim().to_string())
-    })
-    .await;
-    let tls = ClientTlsArgs { tls_ca: Some(ca.clone()), tls_client_cert: None, tls_client_key: None };
-    let operator = ClientSecurity::new(tls.load().unwrap(), Some(token));
-    let channel = channel_with(&format!("https://{gateway_addr}"), &operator).unwrap();
-    let mut fleet = FleetServiceClient::new(channel.clone());
-    let mut missions = MissionServiceClient::new(channel);
+    // 1. The stack, without a robot.
+    let mut stack = Stack::start().await;
+    let (mut fleet, mut missions) = (stack.fleet.clone(), stack.missions.clone());
 
     // 2. The fake A300.
     let mut a300 = FakeA300::start(NAMESPACE, 12.0, 17);
     let log = a300.log.clone();
 
     // 3. The edge agent, as a user runs it on the robot's computer.
-    let mut edge = Command::new(bin.join("vlnav-edge"));
-    edge.args(["--driver", "ros2", "--ros-namespace", NAMESPACE, "--robot-id", ROBOT])
-        .args(["--gateway", &format!("https://{gateway_addr}")])
-        .arg("--tls-ca")
-        .arg(&ca)
-        .arg("--tls-client-cert")
-        .arg(&cert)
-        .arg("--tls-client-key")
-        .arg(&key)
-        .args(["--deadman-timeout-s", &DEADMAN_S.to_string(), "--control-rate-hz", &CONTROL_HZ.to_string()])
-        .env("ROS_DOMAIN_ID", "17")
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::inherit());
-    let _edge = spawn("vlnav-edge --driver ros2", edge);
+    let deadman = DEADMAN_S.to_string();
+    let rate = CONTROL_HZ.to_string();
+    let _edge = stack.edge(NAMESPACE, 17, &["--deadman-timeout-s", &deadman, "--control-rate-hz", &rate]);
 
     // The robot attached, its frames and battery arrive.
     let info = wait_for("the ROS 2 robot attached, with frames and its battery", Duration::from_secs(60), async || {
@@ -290,7 +284,7 @@ async fn inside_the_namespace() {
     // 8. The gateway freezes (SIGSTOP: its connection stays open, no command
     //    comes): the edge agent's deadman commands zero within its timeout and
     //    one control cycle, in the robot's stamps.
-    let pid = libc::pid_t::try_from(gateway.0.id()).expect("a pid");
+    let pid = libc::pid_t::try_from(stack.gateway.0.id()).expect("a pid");
     // SAFETY: a signal to the child this test spawned.
     assert_eq!(unsafe { libc::kill(pid, libc::SIGSTOP) }, 0, "SIGSTOP to vlnav up");
     let frozen = wall_now();
@@ -317,9 +311,9 @@ async fn inside_the_namespace() {
     assert!(cmds.iter().filter(|c| c.stamp > first_zero.stamp).count() >= 10, "zero keeps being published");
 
     // 9. The gateway dies (SIGKILL): the robot stays at zero, the agent reconnecting.
-    let _ = gateway.0.kill();
+    let _ = stack.gateway.0.kill();
     let killed = wall_now();
-    let _ = gateway.0.wait();
+    let _ = stack.gateway.0.wait();
     tokio::time::sleep(Duration::from_millis(1000)).await;
     let after: Vec<Cmd> = log.commands().into_iter().filter(|c| c.recv > killed).collect();
     assert!(after.len() >= 10 && after.iter().all(|c| !c.moves()), "zero held after the gateway died: {after:?}");

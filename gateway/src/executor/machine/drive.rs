@@ -75,7 +75,8 @@ impl Mission {
             (plan.distance_to_goal, PROGRESS_M)
         };
         let Some(step) = self.step.as_mut() else { return self.hold() };
-        // Closer than the best so far: a new best, and a wait counts afresh.
+        // Closer than the best so far (a new best), or moved on from where the
+        // wait began: a wait counts afresh.
         let closer = step.progress.is_some_and(|best| measure < best.0 - step_m);
         let here = Vector2::new(pose.x, pose.y);
         let moved_on = step.waiting_since.is_some_and(|(_, at)| (here - at).norm() >= WAIT_MOVED_M);
