@@ -4,6 +4,7 @@
 //! only that type, so none of them checks a frame again.
 
 use vlnav_geometry::camera::Camera;
+use vlnav_geometry::rgb::{Encoding, header_size};
 use vlnav_proto::v1::{DepthEncoding, ImageEncoding, Pose2D, RgbdFrame, SensorFrame, SimTruth};
 
 /// Largest accepted image side, pixels.
@@ -221,7 +222,27 @@ fn check(frame: &RgbdFrame, previous_stamp: Option<f64>) -> Result<Camera, Frame
                     });
                 }
             }
-            Ok(ImageEncoding::Png | ImageEncoding::Jpeg) if !rgb.data.is_empty() => {}
+            Ok(enc @ (ImageEncoding::Png | ImageEncoding::Jpeg)) => {
+                // Passed on encoded: each stage decodes it (vlnav_geometry::rgb). Here only the
+                // size its header declares is read (no pixels decoded), so that an image that
+                // cannot be the camera's is refused where it enters, not by every stage.
+                let (encoding, format) =
+                    if enc == ImageEncoding::Png { (Encoding::Png, "PNG") } else { (Encoding::Jpeg, "JPEG") };
+                let declared = header_size(encoding, &rgb.data)
+                    .map_err(|e| FrameError::Invalid { seq, what: format!("rgb: {e}") })?
+                    .unwrap_or_default();
+                let fits = |side: u32, camera: u32| side == 0 || side == camera;
+                if declared != (w, h) || !fits(rgb.width, w) || !fits(rgb.height, h) {
+                    return Err(FrameError::Invalid {
+                        seq,
+                        what: format!(
+                            "rgb is a {format} of {}x{} (declared {}x{}); the camera is {w}x{h}, so the image \
+                             must be {w}x{h}",
+                            declared.0, declared.1, rgb.width, rgb.height
+                        ),
+                    });
+                }
+            }
             _ => {
                 return Err(FrameError::Invalid {
                     seq,
@@ -324,6 +345,63 @@ pub(crate) mod tests {
         let depth = f.depth.as_mut().unwrap();
         (depth.width, depth.height, depth.encoding) = (100_000, 100_000, DepthEncoding::Rvl as i32);
         assert!(decode_depth(&mut f).unwrap_err().to_string().contains("outside 1..=4096"));
+    }
+
+    /// A 640×480 colour picture with gradients and edges.
+    fn picture(w: u32, h: u32) -> Vec<u8> {
+        (0..h)
+            .flat_map(|y| {
+                (0..w).flat_map(move |x| {
+                    let stripe = if (x / 24 + y / 24) % 2 == 0 { 70 } else { 0 };
+                    [(x * 255 / w) as u8, (y * 255 / h) as u8, 90 + stripe]
+                })
+            })
+            .collect()
+    }
+
+    fn with_jpeg(w: u32, h: u32, jpeg: Vec<u8>) -> RgbdFrame {
+        let mut f = frame(w, h);
+        f.rgb = Some(Image { width: w, height: h, encoding: ImageEncoding::Jpeg as i32, data: jpeg.into() });
+        f
+    }
+
+    #[test]
+    fn a_jpeg_frame_passes_and_decodes_to_the_camera_size_within_a_bounded_error() {
+        let (w, h) = (640, 480);
+        let raw = picture(w, h);
+        let jpeg = vlnav_geometry::rgb::encode_jpeg(w, h, &raw, 85).unwrap();
+        assert!(jpeg.len() * 10 < raw.len(), "{} bytes of JPEG for {} raw", jpeg.len(), raw.len());
+        let f = with_jpeg(w, h, jpeg);
+        let checked = CheckedFrame::check(SensorFrame { frame: Some(f), truth: None }, None).unwrap();
+        // Passed on as the robot sent it; decoded as every stage decodes it.
+        let rgb = checked.frame().rgb.as_ref().unwrap();
+        assert_eq!(rgb.encoding, ImageEncoding::Jpeg as i32);
+        let img = vlnav_geometry::convert::encoded_image_from_proto(rgb).unwrap().decode().unwrap();
+        assert_eq!(img.dimensions(), (w, h));
+        let (mut sum, mut max) = (0u64, 0u8);
+        for (a, b) in raw.iter().zip(img.as_raw()) {
+            let d = a.abs_diff(*b);
+            sum += u64::from(d);
+            max = max.max(d);
+        }
+        let mean = sum as f64 / raw.len() as f64;
+        assert!(mean < 2.0 && max < 48, "mean error {mean:.2}, max {max}");
+    }
+
+    #[test]
+    fn a_jpeg_of_another_size_or_cut_short_is_refused_with_what_was_expected() {
+        let jpeg = vlnav_geometry::rgb::encode_jpeg(32, 24, &picture(32, 24), 85).unwrap();
+        let e = check_frame(&with_jpeg(64, 48, jpeg.clone()), None).unwrap_err().to_string();
+        assert!(e.contains("rgb is a JPEG of 32x24 (declared 64x48); the camera is 64x48"), "{e}");
+        // Declared 0×0 leaves the size to the header, as the stages read it.
+        let mut f = with_jpeg(32, 24, jpeg.clone());
+        let rgb = f.rgb.as_mut().unwrap();
+        (rgb.width, rgb.height) = (0, 0);
+        assert_eq!(check_frame(&f, None), Ok(()));
+        let e = check_frame(&with_jpeg(32, 24, jpeg[..jpeg.len() / 2].to_vec()), None).unwrap_err().to_string();
+        assert!(e.contains("rgb: cannot decode the JPEG image") && e.contains("end-of-image"), "{e}");
+        let e = check_frame(&with_jpeg(32, 24, Vec::new()), None).unwrap_err().to_string();
+        assert!(e.contains("no frame header"), "{e}");
     }
 
     #[test]

@@ -787,13 +787,8 @@ fn compressed(rgb: pb::Image) -> Result<(&'static str, bytes::Bytes), String> {
         Ok(pb::ImageEncoding::Jpeg) => Ok(("jpeg", rgb.data)),
         Ok(pb::ImageEncoding::Png) => Ok(("png", rgb.data)),
         Ok(pb::ImageEncoding::Rgb8) => {
-            if rgb.data.len() != rgb.width as usize * rgb.height as usize * 3 {
-                return Err(format!("RGB8 image of {} bytes is not {}x{}x3", rgb.data.len(), rgb.width, rgb.height));
-            }
-            let mut out = Vec::with_capacity(rgb.data.len() / 8);
-            image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, 85)
-                .encode(&rgb.data, rgb.width, rgb.height, image::ExtendedColorType::Rgb8)
-                .map_err(|e| e.to_string())?;
+            let out =
+                vlnav_geometry::rgb::encode_jpeg(rgb.width, rgb.height, &rgb.data, 85).map_err(|e| e.to_string())?;
             Ok(("jpeg", out.into()))
         }
         _ => Err(format!("unknown image encoding {}", rgb.encoding)),
@@ -955,7 +950,7 @@ mod tests {
         assert_eq!(&data[..2], &[0xFF, 0xD8]);
         let short =
             pb::Image { width: 4, height: 2, encoding: pb::ImageEncoding::Rgb8 as i32, data: vec![0; 5].into() };
-        assert!(compressed(short).unwrap_err().contains("not 4x2x3"));
+        assert!(compressed(short).unwrap_err().contains("4×2×3 = 24"));
     }
 
     #[test]

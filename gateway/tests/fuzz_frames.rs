@@ -16,6 +16,7 @@ use prost::Message;
 use rand::Rng as _;
 use vlnav_fuzzgen::{self as fuzz, PeakAlloc, Rng, frames};
 use vlnav_gateway::frames::{CheckedFrame, FrameError, MAX_SIDE, check_frame, check_pose};
+use vlnav_geometry::rgb::{Encoding, header_size};
 use vlnav_proto::v1::{EdgeMessage, ImageEncoding, RgbdFrame, SensorFrame, edge_message};
 
 #[global_allocator]
@@ -74,7 +75,11 @@ fn assert_consistent(f: &RgbdFrame, previous: Option<f64>) {
     if let Some(rgb) = &f.rgb {
         match ImageEncoding::try_from(rgb.encoding) {
             Ok(ImageEncoding::Rgb8) => assert_eq!(rgb.data.len(), pixels * 3),
-            Ok(ImageEncoding::Png | ImageEncoding::Jpeg) => assert!(!rgb.data.is_empty()),
+            Ok(enc @ (ImageEncoding::Png | ImageEncoding::Jpeg)) => {
+                let encoding = if enc == ImageEncoding::Png { Encoding::Png } else { Encoding::Jpeg };
+                let size = header_size(encoding, &rgb.data).expect("an accepted image has a readable header");
+                assert_eq!(size, Some((cam.width, cam.height)), "accepted a {enc:?} of another size");
+            }
             other => panic!("accepted an image encoded as {other:?}"),
         }
     }

@@ -6,6 +6,10 @@
 //! [`decode_off_thread`] / [`decode_all_off_thread`], which run it on
 //! tokio's blocking pool instead of an async worker thread.
 //!
+//! The one JPEG encoder too ([`encode_jpeg`]: the edge agent's colour
+//! uplink, the live view), and a header check ([`header_size`]) that reads
+//! the size a PNG or JPEG declares without decoding it.
+//!
 //! Also the one photometric jitter ([`jitter_colour`]) the calibration and
 //! the ReID tests apply to cut-out photos.
 
@@ -40,6 +44,18 @@ pub enum ImageError {
     UnknownEncoding(i32),
 }
 
+/// Why [`encode_jpeg`] could not encode an image.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum EncodeError {
+    #[error("JPEG quality {0} is outside 1..=100 (1 is the smallest, 100 the finest)")]
+    Quality(u8),
+    /// The pixels are not `width`×`height` RGB8, or the image is too large.
+    #[error(transparent)]
+    Size(ImageError),
+    #[error("cannot encode the image as JPEG: {0}")]
+    Encoder(String),
+}
+
 /// Largest side accepted (a D455 frame is 1280×800 at most; photos are larger).
 pub const MAX_SIDE: u32 = 8192;
 
@@ -67,20 +83,7 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
     }
     match encoding {
         Encoding::Rgb8 => {
-            if width == 0 || height == 0 {
-                return Err(ImageError::MissingSize { width, height });
-            }
-            let pixels = width as usize * height as usize;
-            let expected = pixels * 3;
-            if data.len() != expected {
-                let hint = match data.len().checked_div(pixels) {
-                    Some(c) if data.len().is_multiple_of(pixels) && c != 3 => {
-                        format!(" ({c} bytes per pixel: that is {c}-channel data, not RGB)")
-                    }
-                    _ => String::new(),
-                };
-                return Err(ImageError::WrongLength { width, height, got: data.len(), expected, hint });
-            }
+            check_rgb8(width, height, data.len())?;
             Ok(RgbImage::from_raw(width, height, data.to_vec()).expect("length checked"))
         }
         Encoding::Png | Encoding::Jpeg => {
@@ -126,6 +129,122 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
                 return Err(ImageError::SizeMismatch { format: name, width, height, decoded_w: dw, decoded_h: dh });
             }
             Ok(img.into_rgb8())
+        }
+    }
+}
+
+/// Raw RGB8 of `width`×`height` must be exactly 3 bytes a pixel.
+fn check_rgb8(width: u32, height: u32, len: usize) -> Result<(), ImageError> {
+    if width == 0 || height == 0 {
+        return Err(ImageError::MissingSize { width, height });
+    }
+    let pixels = width as usize * height as usize;
+    let expected = pixels * 3;
+    if len != expected {
+        let hint = match len.checked_div(pixels) {
+            Some(c) if len.is_multiple_of(pixels) && c != 3 => {
+                format!(" ({c} bytes per pixel: that is {c}-channel data, not RGB)")
+            }
+            _ => String::new(),
+        };
+        return Err(ImageError::WrongLength { width, height, got: len, expected, hint });
+    }
+    Ok(())
+}
+
+/// Encodes row-major 8-bit RGB of `width`×`height` as a baseline JPEG
+/// (4:4:4, no chroma subsampling) at `quality`, 1–100 on libjpeg's scale.
+/// The size is checked first, as [`decode`] checks it: the encoder itself
+/// would panic on a buffer of the wrong length.
+pub fn encode_jpeg(width: u32, height: u32, rgb: &[u8], quality: u8) -> Result<Vec<u8>, EncodeError> {
+    if !(1..=100).contains(&quality) {
+        return Err(EncodeError::Quality(quality));
+    }
+    if width > MAX_SIDE || height > MAX_SIDE {
+        return Err(EncodeError::Size(ImageError::TooLarge { width, height, max: MAX_SIDE }));
+    }
+    check_rgb8(width, height, rgb.len()).map_err(EncodeError::Size)?;
+    let mut out = Vec::with_capacity(rgb.len() / 10);
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality)
+        .encode(rgb, width, height, image::ExtendedColorType::Rgb8)
+        .map_err(|e| EncodeError::Encoder(e.to_string()))?;
+    Ok(out)
+}
+
+/// The size a PNG (its IHDR chunk) or a JPEG (its frame header) declares,
+/// read without decoding and without allocating, so that every frame can be
+/// checked where it enters; `None` for raw RGB8, which has no header. A JPEG
+/// must also end with its end-of-image marker (see [`decode`]). A stream
+/// that passes may still fail to decode: only [`decode`] reads the pixels.
+pub fn header_size(encoding: Encoding, data: &[u8]) -> Result<Option<(u32, u32)>, ImageError> {
+    let size = match encoding {
+        Encoding::Rgb8 => return Ok(None),
+        Encoding::Png => png_ihdr_size(data).ok_or_else(|| ImageError::Decode {
+            format: "PNG",
+            reason: format!("the data ({} bytes) does not start with the PNG signature and an IHDR chunk", data.len()),
+        })?,
+        Encoding::Jpeg => {
+            let size = jpeg_frame_size(data).ok_or_else(|| ImageError::Decode {
+                format: "JPEG",
+                reason: format!(
+                    "the data ({} bytes) has no frame header (SOF marker) before its first scan",
+                    data.len()
+                ),
+            })?;
+            if !jpeg_is_complete(data) {
+                return Err(ImageError::Decode {
+                    format: "JPEG",
+                    reason: format!("the data ({} bytes) ends without the end-of-image marker FF D9", data.len()),
+                });
+            }
+            size
+        }
+    };
+    Ok(Some(size))
+}
+
+fn png_ihdr_size(data: &[u8]) -> Option<(u32, u32)> {
+    const SIGNATURE: [u8; 8] = [0x89, b'P', b'N', b'G', 0x0D, 0x0A, 0x1A, 0x0A];
+    if data.get(..8)? != SIGNATURE || data.get(12..16)? != *b"IHDR" {
+        return None;
+    }
+    let be = |at: usize| data.get(at..at + 4).map(|b| u32::from_be_bytes([b[0], b[1], b[2], b[3]]));
+    Some((be(16)?, be(20)?))
+}
+
+/// Walks a JPEG's marker segments from its start-of-image marker to the
+/// first frame header (SOF0–SOF15 but DHT, JPG and DAC) and reads its size.
+fn jpeg_frame_size(data: &[u8]) -> Option<(u32, u32)> {
+    if data.get(..2)? != [0xFF, 0xD8] {
+        return None;
+    }
+    let mut i = 2;
+    loop {
+        if *data.get(i)? != 0xFF {
+            return None;
+        }
+        let marker = *data.get(i + 1)?;
+        i += 2;
+        match marker {
+            // Fill byte before a marker.
+            0xFF => i -= 1,
+            // Markers without a segment (TEM, RST0–7, SOI).
+            0x01 | 0xD0..=0xD8 => {}
+            // End of image or a scan before any frame header.
+            0xD9 | 0xDA => return None,
+            _ => {
+                let len = usize::from(u16::from_be_bytes([*data.get(i)?, *data.get(i + 1)?]));
+                if len < 2 {
+                    return None;
+                }
+                if matches!(marker, 0xC0..=0xCF) && !matches!(marker, 0xC4 | 0xC8 | 0xCC) {
+                    // Length (2), precision (1), lines (2), samples per line (2), …
+                    let h = u16::from_be_bytes([*data.get(i + 3)?, *data.get(i + 4)?]);
+                    let w = u16::from_be_bytes([*data.get(i + 5)?, *data.get(i + 6)?]);
+                    return Some((u32::from(w), u32::from(h)));
+                }
+                i += len;
+            }
         }
     }
 }
@@ -245,6 +364,67 @@ mod tests {
         assert!(e.to_string().contains("end-of-image"), "{e}");
         jpeg.extend_from_slice(&[0, 0, 0]);
         assert!(decode(Encoding::Jpeg, 5, 3, &jpeg).is_ok());
+    }
+
+    /// A smooth picture with some edges, like a camera's.
+    fn scene(w: u32, h: u32) -> RgbImage {
+        RgbImage::from_fn(w, h, |x, y| {
+            let edge = if (x / 16 + y / 16) % 2 == 0 { 60 } else { 0 };
+            image::Rgb([(x * 255 / w) as u8, (y * 255 / h) as u8, 100 + edge])
+        })
+    }
+
+    #[test]
+    fn jpeg_encoding_round_trips_within_a_bounded_error() {
+        let img = scene(64, 48);
+        let jpeg = encode_jpeg(64, 48, img.as_raw(), 85).unwrap();
+        assert!(jpeg.len() < img.as_raw().len() / 3, "{} bytes", jpeg.len());
+        assert_eq!(header_size(Encoding::Jpeg, &jpeg).unwrap(), Some((64, 48)));
+        let back = decode(Encoding::Jpeg, 64, 48, &jpeg).unwrap();
+        let errors: Vec<i32> =
+            img.as_raw().iter().zip(back.as_raw()).map(|(a, b)| (i32::from(*a) - i32::from(*b)).abs()).collect();
+        let mean = errors.iter().sum::<i32>() as f64 / errors.len() as f64;
+        assert!(mean < 3.0 && errors.iter().all(|e| *e < 48), "mean {mean}, max {:?}", errors.iter().max());
+        // A lower quality is fewer bytes.
+        assert!(encode_jpeg(64, 48, img.as_raw(), 30).unwrap().len() < jpeg.len());
+    }
+
+    #[test]
+    fn jpeg_encoding_refuses_what_it_cannot_encode_without_panicking() {
+        assert_eq!(encode_jpeg(2, 2, &[0; 12], 0).unwrap_err(), EncodeError::Quality(0));
+        assert!(encode_jpeg(2, 2, &[0; 12], 101).unwrap_err().to_string().contains("outside 1..=100"));
+        let short = encode_jpeg(2, 2, &[0; 11], 85).unwrap_err();
+        assert!(matches!(short, EncodeError::Size(ImageError::WrongLength { got: 11, .. })), "{short}");
+        assert!(short.to_string().starts_with("RGB8 data has 11 bytes"), "{short}");
+        assert!(matches!(encode_jpeg(0, 2, &[], 85), Err(EncodeError::Size(ImageError::MissingSize { .. }))));
+        assert!(matches!(encode_jpeg(MAX_SIDE + 1, 1, &[], 85), Err(EncodeError::Size(ImageError::TooLarge { .. }))));
+        assert!(encode_jpeg(1, 1, &[1, 2, 3], 1).is_ok() && encode_jpeg(1, 1, &[1, 2, 3], 100).is_ok());
+    }
+
+    #[test]
+    fn header_sizes_are_read_without_decoding() {
+        let img = scene(40, 30);
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).unwrap();
+        assert_eq!(header_size(Encoding::Png, &png).unwrap(), Some((40, 30)));
+        assert_eq!(header_size(Encoding::Rgb8, &[]).unwrap(), None);
+        let jpeg = encode_jpeg(40, 30, img.as_raw(), 85).unwrap();
+        // Fill bytes before a marker are allowed.
+        let mut filled = jpeg[..2].to_vec();
+        filled.extend_from_slice(&[0xFF, 0xFF]);
+        filled.extend_from_slice(&jpeg[2..]);
+        assert_eq!(header_size(Encoding::Jpeg, &filled).unwrap(), Some((40, 30)));
+        // A header that lies is read as it lies (the decoder then refuses the stream).
+        let mut rng = vlnav_fuzzgen::case_rng(9, 0);
+        let claiming = vlnav_fuzzgen::frames::jpeg_claiming(&mut rng, 640, 480, 10);
+        assert_eq!(header_size(Encoding::Jpeg, &claiming).unwrap(), Some((640, 480)));
+        for bad in [&jpeg[..jpeg.len() - 2], &jpeg[..40], &png[..], &[0xFF, 0xD8, 0xFF][..], &[][..]] {
+            let e = header_size(Encoding::Jpeg, bad).unwrap_err();
+            assert!(matches!(e, ImageError::Decode { format: "JPEG", .. }), "{e}");
+        }
+        for bad in [&png[..20], &jpeg[..]] {
+            assert!(matches!(header_size(Encoding::Png, bad), Err(ImageError::Decode { format: "PNG", .. })));
+        }
     }
 
     #[test]
