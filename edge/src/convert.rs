@@ -1,12 +1,14 @@
 //! Conversions between the drivers' plain types and the `vlnav.v1` messages.
 
+use std::borrow::Cow;
+
 use vlnav_geometry::convert::pose_to_proto;
 use vlnav_proto::v1 as pb;
 use vlnav_sim::camera::CameraConfig;
 use vlnav_sim::{Frame, Pose2, Truth, Twist};
 
-use crate::DepthCodec;
 use crate::safety::Limits;
+use crate::{Codecs, ColourCodec, DepthCodec};
 
 /// The robot description sent in `EdgeHello`.
 #[derive(Clone, Debug, PartialEq)]
@@ -66,7 +68,7 @@ pub struct FrameMeta<'a> {
     pub camera: pb::CameraInfo,
     pub odom: Pose2,
     pub odom_twist: Twist,
-    pub depth_codec: DepthCodec,
+    pub codecs: Codecs,
 }
 
 /// A depth image of `width`×`height` millimetres (0: no return) as `codec` sends it.
@@ -78,6 +80,35 @@ pub fn depth_image(width: u32, height: u32, depth_mm: &[u16], codec: DepthCodec)
     pb::DepthImage { width, height, data_mm: data_mm.into(), encoding: encoding as i32 }
 }
 
+/// A colour image of `width`×`height` 8-bit RGB as `codecs` sends it. If
+/// the JPEG encoder refuses it (it cannot, at a size the gateway accepts,
+/// with the length the drivers check) it goes raw, with a warning: a frame
+/// sent larger keeps the robot driven, where a frame not sent would stop it.
+pub fn colour_image(width: u32, height: u32, rgb: Cow<'_, [u8]>, codecs: Codecs) -> pb::Image {
+    let raw = |rgb: Cow<'_, [u8]>| pb::Image {
+        width,
+        height,
+        encoding: pb::ImageEncoding::Rgb8 as i32,
+        data: rgb.into_owned().into(),
+    };
+    match codecs.colour {
+        ColourCodec::Raw => raw(rgb),
+        ColourCodec::Jpeg => match vlnav_geometry::rgb::encode_jpeg(width, height, &rgb, codecs.jpeg_quality) {
+            Ok(jpeg) => pb::Image { width, height, encoding: pb::ImageEncoding::Jpeg as i32, data: jpeg.into() },
+            Err(e) => {
+                tracing::warn!("colour sent raw: {e}");
+                raw(rgb)
+            }
+        },
+    }
+}
+
+/// Bytes of a frame's images as sent (colour and depth): what a real
+/// robot's frame carries, without the simulator's labels.
+pub fn image_bytes(f: &pb::RgbdFrame) -> usize {
+    f.rgb.as_ref().map_or(0, |i| i.data.len()) + f.depth.as_ref().map_or(0, |d| d.data_mm.len())
+}
+
 /// A rendered simulator frame as an `RgbdFrame` (with its label image).
 pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
     pb::RgbdFrame {
@@ -85,13 +116,8 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
         seq: meta.seq,
         stamp: meta.stamp,
         camera: Some(meta.camera),
-        rgb: Some(pb::Image {
-            width: f.width,
-            height: f.height,
-            encoding: pb::ImageEncoding::Rgb8 as i32,
-            data: f.rgb.clone().into(),
-        }),
-        depth: Some(depth_image(f.width, f.height, &f.depth_mm, meta.depth_codec)),
+        rgb: Some(colour_image(f.width, f.height, Cow::Borrowed(&f.rgb), meta.codecs)),
+        depth: Some(depth_image(f.width, f.height, &f.depth_mm, meta.codecs.depth)),
         odom: Some(pose_to_proto(&meta.odom)),
         odom_twist: Some(twist(&meta.odom_twist)),
         labels: Some(pb::LabelImage {
@@ -150,14 +176,15 @@ mod tests {
             camera: sim_camera_info(sim.camera()),
             odom: Pose2::default(),
             odom_twist: Twist::ZERO,
-            depth_codec: DepthCodec::Raw,
+            codecs: Codecs::default(),
         };
         let m = sim_frame(meta.clone(), &f);
         let rgb = m.rgb.unwrap();
         assert_eq!((rgb.width, rgb.height, rgb.data.len()), (64, 48, 64 * 48 * 3));
         assert_eq!(m.depth.unwrap().data_mm.len(), 64 * 48 * 2);
         // RVL carries the same millimetres in fewer bytes.
-        let rvl = sim_frame(FrameMeta { depth_codec: DepthCodec::Rvl, ..meta }, &f).depth.unwrap();
+        let rvl_codecs = Codecs { depth: DepthCodec::Rvl, ..Codecs::default() };
+        let rvl = sim_frame(FrameMeta { codecs: rvl_codecs, ..meta }, &f).depth.unwrap();
         assert_eq!(rvl.encoding, pb::DepthEncoding::Rvl as i32);
         assert!(rvl.data_mm.len() < 64 * 48 * 2);
         assert_eq!(vlnav_geometry::rvl::decode(&rvl.data_mm, 64 * 48).unwrap(), f.depth_mm);
@@ -167,5 +194,46 @@ mod tests {
         let cam = m.camera.unwrap();
         assert!((cam.intrinsics.unwrap().fx - 343.159 / 10.0).abs() < 1e-9);
         assert!((cam.mount.unwrap().translation.unwrap().z - 0.6).abs() < 1e-12);
+    }
+
+    #[test]
+    fn jpeg_colour_is_a_small_share_of_raw_and_decodes_to_the_frame_within_a_bounded_error() {
+        let world = vlnav_sim::load_scenario("lab").unwrap();
+        let mut sim = vlnav_sim::Simulator::new(world, 0);
+        let f = sim.render();
+        let (w, h) = (f.width, f.height);
+        assert_eq!((w, h), (640, 480));
+        let meta = FrameMeta {
+            robot_id: "husky-1",
+            seq: 0,
+            stamp: 0.0,
+            camera: sim_camera_info(sim.camera()),
+            odom: Pose2::default(),
+            odom_twist: Twist::ZERO,
+            codecs: Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 85, depth: DepthCodec::Rvl },
+        };
+        let m = sim_frame(meta, &f);
+        let rgb = m.rgb.as_ref().unwrap();
+        assert_eq!((rgb.encoding, rgb.width, rgb.height), (pb::ImageEncoding::Jpeg as i32, w, h));
+        assert!(rgb.data.len() * 10 < f.rgb.len(), "{} bytes of JPEG", rgb.data.len());
+        assert!(image_bytes(&m) * 3 < f.rgb.len() + f.depth_mm.len() * 2, "{} bytes", image_bytes(&m));
+        // The stages' decoder gives back the rendered picture.
+        let img = vlnav_geometry::convert::encoded_image_from_proto(rgb).unwrap().decode().unwrap();
+        assert_eq!(img.dimensions(), (w, h));
+        let errors: Vec<u8> = f.rgb.iter().zip(img.as_raw()).map(|(a, b)| a.abs_diff(*b)).collect();
+        let mean = errors.iter().map(|e| f64::from(*e)).sum::<f64>() / errors.len() as f64;
+        assert!(mean < 3.0, "mean error {mean:.2}");
+    }
+
+    #[test]
+    fn colour_the_encoder_refuses_goes_raw() {
+        let jpeg = Codecs { colour: ColourCodec::Jpeg, ..Codecs::default() };
+        // A buffer one byte short (no driver sends one): raw, as it came, rather than a panic.
+        let img = colour_image(2, 2, Cow::Owned(vec![7; 11]), jpeg);
+        assert_eq!((img.encoding, img.data.len()), (pb::ImageEncoding::Rgb8 as i32, 11));
+        let img = colour_image(2, 2, Cow::Owned(vec![7; 12]), jpeg);
+        assert_eq!(img.encoding, pb::ImageEncoding::Jpeg as i32);
+        let raw = colour_image(2, 2, Cow::Owned(vec![7; 12]), Codecs::default());
+        assert_eq!((raw.encoding, raw.data.len()), (pb::ImageEncoding::Rgb8 as i32, 12));
     }
 }

@@ -99,6 +99,54 @@ pub enum DepthCodec {
     Rvl,
 }
 
+/// How colour travels to the gateway (docs/architecture.md, "Frames").
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ColourCodec {
+    /// 8-bit RGB as the camera gives it: 921,600 bytes a 640×480 frame.
+    #[default]
+    Raw,
+    /// JPEG at --jpeg-quality, encoded on the robot: lossy, under a tenth of
+    /// the bytes, for an uplink whose bandwidth is the limit.
+    Jpeg,
+}
+
+impl ColourCodec {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            ColourCodec::Raw => "raw",
+            ColourCodec::Jpeg => "jpeg",
+        }
+    }
+}
+
+impl DepthCodec {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DepthCodec::Raw => "raw",
+            DepthCodec::Rvl => "rvl",
+        }
+    }
+}
+
+/// The JPEG quality of `--colour-codec jpeg` unless told otherwise.
+pub const DEFAULT_JPEG_QUALITY: u8 = 85;
+
+/// How a frame's images are sent up: `--colour-codec` at `--jpeg-quality`,
+/// and `--depth-codec`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Codecs {
+    pub colour: ColourCodec,
+    /// 1–100 (libjpeg's scale); read only with [`ColourCodec::Jpeg`].
+    pub jpeg_quality: u8,
+    pub depth: DepthCodec,
+}
+
+impl Default for Codecs {
+    fn default() -> Self {
+        Self { colour: ColourCodec::Raw, jpeg_quality: DEFAULT_JPEG_QUALITY, depth: DepthCodec::Raw }
+    }
+}
+
 /// Settings of one edge agent (flags or `VLNAV_EDGE_*` environment variables).
 #[derive(clap::Args, Clone, Debug)]
 pub struct EdgeOptions {
@@ -155,6 +203,17 @@ pub struct EdgeOptions {
     /// bytes, for a link whose bandwidth is the limit).
     #[arg(long, env = "VLNAV_EDGE_DEPTH_CODEC", value_enum, default_value_t = DepthCodec::Raw)]
     pub depth_codec: DepthCodec,
+    /// How colour is sent: `raw` RGB8, or `jpeg` (lossy, encoded here at
+    /// --jpeg-quality in 15–18 ms a 640×480 frame: under a tenth of the bytes
+    /// at 85, for a link whose bandwidth is the limit; it costs the detector
+    /// marginal boxes and the segmenter thin cables, docs/architecture.md,
+    /// "Frames").
+    #[arg(long, alias = "color-codec", env = "VLNAV_EDGE_COLOUR_CODEC", value_enum, default_value_t = ColourCodec::Raw)]
+    pub colour_codec: ColourCodec,
+    /// JPEG quality of --colour-codec jpeg, 1 (smallest) to 100 (finest).
+    #[arg(long, env = "VLNAV_EDGE_JPEG_QUALITY", default_value_t = DEFAULT_JPEG_QUALITY,
+          value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub jpeg_quality: u8,
     /// Largest gRPC message sent or accepted, bytes.
     #[arg(long, env = "VLNAV_EDGE_MAX_MESSAGE_BYTES", default_value_t = 16 * 1024 * 1024)]
     pub max_message_bytes: usize,
@@ -240,6 +299,8 @@ impl Default for EdgeOptions {
             estop: false,
             max_sim_time_s: None,
             depth_codec: DepthCodec::Raw,
+            colour_codec: ColourCodec::Raw,
+            jpeg_quality: DEFAULT_JPEG_QUALITY,
             max_message_bytes: 16 * 1024 * 1024,
             ros_node: "vlnav_edge".into(),
             ros_namespace: String::new(),
@@ -292,6 +353,9 @@ impl EdgeOptions {
         if !(0.0..=1.0).contains(&self.battery_low) {
             anyhow::bail!("--battery-low is a charge from 0 to 1, got {}", self.battery_low);
         }
+        if !(1..=100).contains(&self.jpeg_quality) {
+            anyhow::bail!("--jpeg-quality is from 1 (smallest) to 100 (finest), got {}", self.jpeg_quality);
+        }
         if self.lockstep && self.driver != DriverKind::Sim {
             anyhow::bail!("--lockstep needs --driver sim (a real robot cannot wait for the gateway)");
         }
@@ -300,6 +364,11 @@ impl EdgeOptions {
 }
 
 impl EdgeOptions {
+    /// How this agent sends a frame's images.
+    pub fn codecs(&self) -> Codecs {
+        Codecs { colour: self.colour_codec, jpeg_quality: self.jpeg_quality, depth: self.depth_codec }
+    }
+
     /// The topics of the ROS driver, each flag left out taking the driver's default.
     pub fn ros_topics(&self) -> RosTopics {
         let ros2 = self.driver == DriverKind::Ros2;
@@ -402,8 +471,11 @@ pub struct Hooks {
 #[derive(Clone, Copy, Debug)]
 pub enum LinkEvent {
     /// The frame stamped `stamp` was handed to the link (`queued`), or
-    /// dropped because the link's queue was full.
-    Frame { stamp: f64, queued: bool, at: std::time::Instant },
+    /// dropped because the link's queue was full. `bytes`: its message as
+    /// encoded for the link (everything but gRPC's 5-byte prefix, HTTP/2
+    /// framing and TLS); `image_bytes`: its colour and depth data alone, what
+    /// a real robot's frame carries (the simulator adds a label image).
+    Frame { stamp: f64, queued: bool, at: std::time::Instant, bytes: usize, image_bytes: usize },
     /// A velocity command answering the frame stamped `stamp` arrived.
     Command { stamp: f64, idle: bool, at: std::time::Instant },
 }
@@ -466,4 +538,47 @@ pub async fn run_episode(opts: EdgeOptions, shutdown: CancellationToken) -> anyh
         records.push(r);
     }
     result.map(|_| records)
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+
+    #[derive(Parser, Debug)]
+    struct Cli {
+        #[command(flatten)]
+        edge: EdgeOptions,
+    }
+
+    fn parse(args: &[&str]) -> Result<EdgeOptions, String> {
+        Cli::try_parse_from(std::iter::once("vlnav-edge").chain(args.iter().copied()))
+            .map(|c| c.edge)
+            .map_err(|e| e.to_string())
+    }
+
+    #[test]
+    fn the_colour_codec_and_its_quality_are_flags_with_raw_the_default() {
+        let default = parse(&[]).unwrap();
+        assert_eq!(default.codecs(), Codecs::default());
+        assert_eq!(default.codecs().colour, ColourCodec::Raw);
+        let jpeg = parse(&["--colour-codec", "jpeg", "--jpeg-quality", "70", "--depth-codec", "rvl"]).unwrap();
+        assert_eq!(jpeg.codecs(), Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 70, depth: DepthCodec::Rvl });
+        assert_eq!(parse(&["--color-codec", "jpeg"]).unwrap().colour_codec, ColourCodec::Jpeg);
+        assert!(jpeg.validate().is_ok());
+    }
+
+    #[test]
+    fn a_bad_jpeg_quality_or_codec_is_refused_with_the_valid_values() {
+        for (q, why) in [("0", "0 is not in 1..=100"), ("101", "101 is not in 1..=100"), ("high", "invalid digit")] {
+            let e = parse(&["--colour-codec", "jpeg", "--jpeg-quality", q]).unwrap_err();
+            assert!(e.contains("--jpeg-quality") && e.contains(why), "{e}");
+        }
+        let e = parse(&["--colour-codec", "png"]).unwrap_err();
+        assert!(e.contains("possible values: raw, jpeg"), "{e}");
+        // Settings built in code are checked as the flags are.
+        let e = EdgeOptions { jpeg_quality: 0, ..EdgeOptions::default() }.validate().unwrap_err().to_string();
+        assert!(e.contains("--jpeg-quality is from 1 (smallest) to 100 (finest), got 0"), "{e}");
+    }
 }

@@ -438,7 +438,7 @@ impl<R: RosPlatform> Session<'_, R> {
                         seq,
                         stamp: f.stamp,
                         camera: Some(camera_info(opts, f.width, f.height, f.intrinsics)),
-                        rgb: Some(pb::Image { width: f.width, height: f.height, encoding: pb::ImageEncoding::Rgb8 as i32, data: f.rgb.into() }),
+                        rgb: Some(convert::colour_image(f.width, f.height, std::borrow::Cow::Owned(f.rgb), opts.codecs())),
                         depth: Some(depth_le(f.width, f.height, f.depth_mm_le, opts.depth_codec)),
                         odom: Some(pose_to_proto(&odom_pose)),
                         odom_twist: Some(convert::twist(&odom_twist)),

@@ -40,7 +40,7 @@ struct SimRobot {
     seq: u64,
     robot_id: String,
     max_time: Option<f64>,
-    depth_codec: crate::DepthCodec,
+    codecs: crate::Codecs,
 }
 
 impl SimRobot {
@@ -57,7 +57,7 @@ impl SimRobot {
             camera: self.camera,
             odom: odom.pose,
             odom_twist: wheel,
-            depth_codec: self.depth_codec,
+            codecs: self.codecs,
         };
         let frame = pb::SensorFrame {
             frame: Some(convert::sim_frame(meta, &self.frame)),
@@ -106,7 +106,7 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
         seq: 0,
         robot_id: opts.robot_id.clone(),
         max_time: opts.max_sim_time_s,
-        depth_codec: opts.depth_codec,
+        codecs: opts.codecs(),
     };
     let mut gov = Governor::new(desc.limits, opts.deadman_timeout_s);
     let mut backoff =
@@ -352,6 +352,8 @@ impl Session<'_> {
                     }
                     let (frame, odo, _, _) = robot.capture();
                     let stamp = frame.frame.as_ref().map(|f| f.stamp);
+                    let image_bytes = frame.frame.as_ref().map_or(0, convert::image_bytes);
+                    let bytes = prost::Message::encoded_len(&frame);
                     let mut queued = true;
                     for msg in [convert::edge(pb::edge_message::Kind::Odometry(odo)), convert::edge(pb::edge_message::Kind::Frame(frame))] {
                         match link.offer(msg) {
@@ -361,7 +363,7 @@ impl Session<'_> {
                     }
                     if let Some(stamp) = stamp {
                         last.frame_sent(stamp);
-                        timing(hooks, LinkEvent::Frame { stamp, queued, at: std::time::Instant::now() });
+                        timing(hooks, LinkEvent::Frame { stamp, queued, at: std::time::Instant::now(), bytes, image_bytes });
                     }
                 }
             }

@@ -22,7 +22,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
-use vlnav_edge_agent::{DepthCodec, EdgeOptions, Hooks, LinkEvent};
+use vlnav_edge_agent::{ColourCodec, DEFAULT_JPEG_QUALITY, DepthCodec, EdgeOptions, Hooks, LinkEvent};
 use vlnav_gateway::auth::{Role, TokenEntry, TokenFile};
 use vlnav_proto::v1::{
     GetMissionRequest, ListRobotsRequest, MissionState, SubmitMissionRequest, WatchMissionRequest,
@@ -40,11 +40,17 @@ use crate::up::{StackSecurity, UpArgs, up};
 /// follow and a goal: every stage works), then a way back, then a short move.
 pub const MISSIONS: [&str; 3] = [crate::CASE_2, "go back 3 m", "take a right turn and move 2 m ahead"];
 
-fn codec_name(c: DepthCodec) -> &'static str {
-    match c {
-        DepthCodec::Rvl => "rvl",
-        DepthCodec::Raw => "raw",
+/// The colour codec as reports name it: `raw`, or `jpeg` with its quality.
+fn colour_name(codec: ColourCodec, quality: u8) -> String {
+    match codec {
+        ColourCodec::Raw => "raw".into(),
+        ColourCodec::Jpeg => format!("jpeg q{quality}"),
     }
+}
+
+/// Megabits per second per robot of `bytes` sent by `robots` in `seconds`.
+fn mbit_s_per_robot(bytes: u64, robots: usize, seconds: f64) -> f64 {
+    if robots == 0 || seconds <= 0.0 { 0.0 } else { bytes as f64 * 8.0 / 1e6 / seconds / robots as f64 }
 }
 
 /// Robot ids of a benchmark run.
@@ -100,6 +106,12 @@ pub struct FleetArgs {
     /// How the robots send depth (the edge agent's --depth-codec).
     #[arg(long, value_enum, default_value_t = DepthCodec::Raw)]
     pub depth_codec: DepthCodec,
+    /// How the robots send colour (the edge agent's --colour-codec).
+    #[arg(long, alias = "color-codec", value_enum, default_value_t = ColourCodec::Raw)]
+    pub colour_codec: ColourCodec,
+    /// JPEG quality of --colour-codec jpeg (the edge agent's --jpeg-quality).
+    #[arg(long, default_value_t = DEFAULT_JPEG_QUALITY, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub jpeg_quality: u8,
     /// While measuring, a client floods SubmitMission from 16 concurrent
     /// calls with its own token.
     #[arg(long)]
@@ -128,6 +140,10 @@ pub struct RobotsArgs {
     pub scenario: String,
     #[arg(long, value_enum)]
     pub depth_codec: DepthCodec,
+    #[arg(long, value_enum, default_value_t = ColourCodec::Raw)]
+    pub colour_codec: ColourCodec,
+    #[arg(long, default_value_t = DEFAULT_JPEG_QUALITY, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub jpeg_quality: u8,
 }
 
 #[derive(clap::Args, Clone, Debug)]
@@ -147,6 +163,12 @@ pub struct PlotArgs {
 pub struct RobotsSummary {
     pub seconds: f64,
     pub frames_sent: u64,
+    /// Bytes of the frames handed to the links (see [`LinkEvent::Frame`]).
+    #[serde(default)]
+    pub frame_bytes: u64,
+    /// Of those, the colour and depth data.
+    #[serde(default)]
+    pub image_bytes: u64,
     pub dropped_at_edge: u64,
     pub unanswered: u64,
     pub cycles: u64,
@@ -183,6 +205,18 @@ pub struct FleetReport {
     pub frame_rate: f64,
     #[serde(default)]
     pub depth_codec: String,
+    /// `raw`, or `jpeg q<quality>`.
+    #[serde(default)]
+    pub colour_codec: String,
+    /// The uplink of each robot, megabits per second: bytes of the frames
+    /// it sent (each frame's message as encoded, labels included) over the
+    /// seconds measured.
+    #[serde(default)]
+    pub uplink_mbit_s_per_robot: f64,
+    /// Of that, the colour and depth data: the uplink of a real robot,
+    /// which sends no label image.
+    #[serde(default)]
+    pub image_mbit_s_per_robot: f64,
     /// Frames each robot actually sent per second (below `frame_rate` when
     /// the robots' own simulation cannot keep up).
     pub achieved_frame_rate: f64,
@@ -228,12 +262,13 @@ impl std::fmt::Display for FleetReport {
         }
         writeln!(
             f,
-            "{} robots, {}x{} at {} fps ({:.1} achieved), {} depth, {} perception, {:.0} s measured{}",
+            "{} robots, {}x{} at {} fps ({:.1} achieved), {} colour, {} depth, {} perception, {:.0} s measured{}",
             self.robots,
             self.width,
             self.height,
             self.frame_rate,
             self.achieved_frame_rate,
+            self.colour_codec,
             self.depth_codec,
             self.perception,
             self.seconds,
@@ -243,6 +278,11 @@ impl std::fmt::Display for FleetReport {
             f,
             "  control cycle (frame in → command out): p50 {:.1} ms, p99 {:.1} ms, max {:.1} ms; worst robot's p99 {:.1} ms",
             self.cycle_p50_ms, self.cycle_p99_ms, self.cycle_max_ms, self.worst_robot_p99_ms
+        )?;
+        writeln!(
+            f,
+            "  uplink per robot: {:.1} Mbit/s of frames, {:.1} Mbit/s of it colour and depth (the rest: the simulator's labels)",
+            self.uplink_mbit_s_per_robot, self.image_mbit_s_per_robot
         )?;
         writeln!(
             f,
@@ -351,6 +391,9 @@ struct CycleStats {
     /// whether each was sent while measuring (only those are counted).
     pending: VecDeque<(f64, Instant, bool)>,
     sent: u64,
+    /// Bytes of the frames queued while measuring, and of their images.
+    bytes: u64,
+    image_bytes: u64,
     dropped_at_edge: u64,
     unanswered: u64,
     idle: u64,
@@ -362,10 +405,14 @@ impl CycleStats {
     /// Records `event`; counts only while `measuring`.
     fn on(&mut self, event: LinkEvent, measuring: bool, period: f64) {
         match event {
-            LinkEvent::Frame { stamp, queued, at } => {
+            LinkEvent::Frame { stamp, queued, at, bytes, image_bytes } => {
                 if measuring {
                     self.sent += 1;
                     self.dropped_at_edge += u64::from(!queued);
+                    if queued {
+                        self.bytes += bytes as u64;
+                        self.image_bytes += image_bytes as u64;
+                    }
                 }
                 if queued {
                     self.pending.push_back((stamp, at, measuring));
@@ -425,6 +472,8 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
             width: Some(args.width),
             height: Some(args.height),
             depth_codec: args.depth_codec,
+            colour_codec: args.colour_codec,
+            jpeg_quality: args.jpeg_quality,
             ..EdgeOptions::default()
         };
         if let Some(pki) = &pki {
@@ -472,6 +521,8 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
     for s in &stats {
         let mut s = s.lock().unwrap_or_else(|p| p.into_inner());
         summary.frames_sent += s.sent;
+        summary.frame_bytes += s.bytes;
+        summary.image_bytes += s.image_bytes;
         summary.dropped_at_edge += s.dropped_at_edge;
         summary.unanswered += s.unanswered;
         summary.idle_cycles += s.idle;
@@ -651,7 +702,8 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         .args(["bench", "robots", "--gateway", &uri, "--robots", &n.to_string()])
         .args(["--width", &args.width.to_string(), "--height", &args.height.to_string()])
         .args(["--frame-rate", &args.frame_rate.to_string(), "--scenario", &args.scenario])
-        .args(["--depth-codec", codec_name(args.depth_codec)])
+        .args(["--depth-codec", args.depth_codec.as_str(), "--colour-codec", args.colour_codec.as_str()])
+        .args(["--jpeg-quality", &args.jpeg_quality.to_string()])
         .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
         .kill_on_drop(true);
@@ -736,7 +788,10 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             width: args.width,
             height: args.height,
             frame_rate: args.frame_rate,
-            depth_codec: codec_name(args.depth_codec).into(),
+            depth_codec: args.depth_codec.as_str().into(),
+            colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
+            uplink_mbit_s_per_robot: mbit_s_per_robot(robots.frame_bytes, n, robots.seconds),
+            image_mbit_s_per_robot: mbit_s_per_robot(robots.image_bytes, n, robots.seconds),
             achieved_frame_rate: robots.frames_sent as f64 / (n as f64 * robots.seconds.max(1e-9)),
             frames_sent: robots.frames_sent,
             cycles: robots.cycles,
@@ -800,7 +855,8 @@ pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::R
                 width: args.width,
                 height: args.height,
                 frame_rate: args.frame_rate,
-                depth_codec: codec_name(args.depth_codec).into(),
+                depth_codec: args.depth_codec.as_str().into(),
+                colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
                 error: Some(format!("{e:#}")),
                 ..Default::default()
             },
@@ -846,8 +902,9 @@ pub fn plot(args: &PlotArgs) -> anyhow::Result<()> {
 
 fn series_label(runs: &[FleetReport]) -> String {
     let r = &runs[0];
+    let colour = if r.colour_codec.is_empty() { "raw" } else { r.colour_codec.as_str() };
     format!(
-        "{} perception, {}x{}, {} depth{}",
+        "{} perception, {}x{}, {colour} colour, {} depth{}",
         r.perception,
         r.width,
         r.height,
@@ -979,19 +1036,21 @@ mod tests {
     fn cycles_pair_each_command_with_its_frame_and_count_what_was_passed_over() {
         let t = Instant::now();
         let mut s = CycleStats::default();
-        s.on(LinkEvent::Frame { stamp: 0.1, queued: true, at: at(t, 0) }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 0.1, queued: true, at: at(t, 0), bytes: 1000, image_bytes: 800 }, true, 0.1);
         s.on(LinkEvent::Command { stamp: 0.1, idle: false, at: at(t, 12) }, true, 0.1);
         // Frame 0.2 is passed over by the gateway; 0.3 is answered late.
-        s.on(LinkEvent::Frame { stamp: 0.2, queued: true, at: at(t, 100) }, true, 0.1);
-        s.on(LinkEvent::Frame { stamp: 0.3, queued: true, at: at(t, 200) }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 0.2, queued: true, at: at(t, 100), bytes: 1000, image_bytes: 800 }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 0.3, queued: true, at: at(t, 200), bytes: 1000, image_bytes: 800 }, true, 0.1);
         s.on(LinkEvent::Command { stamp: 0.3, idle: false, at: at(t, 350) }, true, 0.1);
         // The robot's queue was full; an idle answer is not a mission cycle.
-        s.on(LinkEvent::Frame { stamp: 0.4, queued: false, at: at(t, 300) }, true, 0.1);
-        s.on(LinkEvent::Frame { stamp: 0.5, queued: true, at: at(t, 400) }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 0.4, queued: false, at: at(t, 300), bytes: 1000, image_bytes: 800 }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 0.5, queued: true, at: at(t, 400), bytes: 1000, image_bytes: 800 }, true, 0.1);
         s.on(LinkEvent::Command { stamp: 0.5, idle: true, at: at(t, 401) }, true, 0.1);
         // A command for a frame nobody recorded changes nothing.
         s.on(LinkEvent::Command { stamp: 0.45, idle: false, at: at(t, 402) }, true, 0.1);
         assert_eq!(s.sent, 5);
+        // The frame dropped at the robot never reached the link.
+        assert_eq!((s.bytes, s.image_bytes), (4000, 3200));
         assert_eq!((s.dropped_at_edge, s.unanswered, s.idle, s.late), (1, 1, 1, 1));
         assert_eq!(s.cycles_ms.len(), 2);
         assert!((s.cycles_ms[0] - 12.0).abs() < 1.0 && (s.cycles_ms[1] - 150.0).abs() < 1.0, "{:?}", s.cycles_ms);
@@ -1001,10 +1060,10 @@ mod tests {
     fn nothing_is_counted_outside_the_measurement() {
         let t = Instant::now();
         let mut s = CycleStats::default();
-        s.on(LinkEvent::Frame { stamp: 1.0, queued: true, at: t }, false, 0.1);
-        s.on(LinkEvent::Frame { stamp: 1.1, queued: true, at: t }, false, 0.1);
+        s.on(LinkEvent::Frame { stamp: 1.0, queued: true, at: t, bytes: 10, image_bytes: 5 }, false, 0.1);
+        s.on(LinkEvent::Frame { stamp: 1.1, queued: true, at: t, bytes: 10, image_bytes: 5 }, false, 0.1);
         s.on(LinkEvent::Command { stamp: 1.1, idle: false, at: t }, false, 0.1);
-        assert_eq!((s.sent, s.unanswered, s.cycles_ms.len()), (0, 0, 0));
+        assert_eq!((s.sent, s.unanswered, s.cycles_ms.len(), s.bytes), (0, 0, 0, 0));
         assert!(s.pending.is_empty());
     }
 
@@ -1012,11 +1071,21 @@ mod tests {
     fn a_frame_sent_before_the_measurement_is_not_counted_when_answered_during_it() {
         let t = Instant::now();
         let mut s = CycleStats::default();
-        s.on(LinkEvent::Frame { stamp: 1.0, queued: true, at: t }, false, 0.1);
-        s.on(LinkEvent::Frame { stamp: 1.1, queued: true, at: t }, true, 0.1);
+        s.on(LinkEvent::Frame { stamp: 1.0, queued: true, at: t, bytes: 10, image_bytes: 5 }, false, 0.1);
+        s.on(LinkEvent::Frame { stamp: 1.1, queued: true, at: t, bytes: 10, image_bytes: 5 }, true, 0.1);
         s.on(LinkEvent::Command { stamp: 1.0, idle: false, at: t }, true, 0.1);
         s.on(LinkEvent::Command { stamp: 1.1, idle: false, at: t }, true, 0.1);
         assert_eq!((s.sent, s.cycles_ms.len()), (1, 1));
+    }
+
+    #[test]
+    fn the_uplink_is_megabits_per_second_per_robot() {
+        // 10 frames of 125,000 bytes a second is 10 Mbit/s; two robots share what was summed.
+        assert!((mbit_s_per_robot(2 * 10 * 125_000 * 30, 2, 30.0) - 10.0).abs() < 1e-9);
+        assert_eq!(mbit_s_per_robot(1000, 0, 1.0), 0.0);
+        assert_eq!(mbit_s_per_robot(1000, 1, 0.0), 0.0);
+        assert_eq!(colour_name(ColourCodec::Jpeg, 85), "jpeg q85");
+        assert_eq!(colour_name(ColourCodec::Raw, 85), "raw");
     }
 
     #[test]
@@ -1055,13 +1124,14 @@ mod tests {
             width: 640,
             height: 480,
             depth_codec: "rvl".into(),
+            colour_codec: "jpeg q85".into(),
             ..Default::default()
         };
         let a = vec![run(1, 5.0, 9.0, "oracle"), run(10, 6.0, 20.0, "oracle"), run(100, 80.0, 900.0, "oracle")];
         let b = vec![run(1, 8.0, 15.0, "realistic"), run(10, 12.0, 60.0, "realistic")];
         let svg = plot_svg(&[a, b], 50.0);
         assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
-        assert!(svg.contains("oracle perception, 640x480, rvl depth"), "{svg}");
+        assert!(svg.contains("oracle perception, 640x480, jpeg q85 colour, rvl depth"), "{svg}");
         assert!(svg.contains("realistic perception, 640x480"));
         assert!(svg.contains("goal: p99 ≤ 50 ms"));
         assert_eq!(svg.matches("<circle").count(), 5);
