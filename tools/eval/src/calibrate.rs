@@ -106,7 +106,7 @@ impl Default for CalibrateArgs {
 }
 
 /// A small counter-based random number generator.
-struct Rng(u64);
+pub(crate) struct Rng(u64);
 
 impl Rng {
     fn next(&mut self) -> u64 {
@@ -142,9 +142,10 @@ pub struct References {
 
 /// One pasted object on a canvas.
 #[derive(Clone, Debug)]
-struct Pasted {
+pub(crate) struct Pasted {
     class_id: i32,
-    gt: Detection,
+    /// Where it was pasted: its true box.
+    pub(crate) gt: Detection,
     visible: f32,
     height_bin: usize,
 }
@@ -256,14 +257,19 @@ fn inside_share(a: &Detection, b: &Detection) -> f32 {
 }
 
 /// One canvas: its image, what was pasted where, and the background's own objects.
-struct Canvas {
-    img: RgbImage,
-    pasted: Vec<Pasted>,
-    background: Vec<Detection>,
+pub(crate) struct Canvas {
+    pub(crate) img: RgbImage,
+    pub(crate) pasted: Vec<Pasted>,
+    pub(crate) background: Vec<Detection>,
+}
+
+/// The generator of the canvases of `seed` (also `vlnav bench jpeg`'s).
+pub(crate) fn canvas_rng(seed: u64) -> Rng {
+    Rng(splitmix(seed ^ 0x43414c49))
 }
 
 /// Builds one canvas.
-fn canvas(photos: &[RgbImage], r: &References, rng: &mut Rng) -> Canvas {
+pub(crate) fn canvas(photos: &[RgbImage], r: &References, rng: &mut Rng) -> Canvas {
     let (mut img, background) = background(photos, &r.known, rng);
     let refs = &r.refs;
     let mut pasted: Vec<Pasted> = Vec::new();
@@ -327,7 +333,7 @@ pub fn measure(
     n: u32,
     seed: u64,
 ) -> anyhow::Result<Measurements> {
-    let mut rng = Rng(splitmix(seed ^ 0x43414c49));
+    let mut rng = canvas_rng(seed);
     let filter = DetectFilter { class_ids: vec![], min_score: MIN_SCORE };
     let mut m = Measurements { canvases: n, ..Default::default() };
     const BATCH: usize = 4;

@@ -12,6 +12,8 @@
 //! - [`runner`]: one trial through a gateway (edge agent + MissionService);
 //! - [`calibrate`]: `vlnav calibrate-perception`, the perception error model
 //!   measured on the real detector and ReID embedder;
+//! - [`jpeg_cost`]: `vlnav bench jpeg`, what JPEG colour on the robot's
+//!   uplink costs the detector and the segmenter;
 //! - [`worlds`]: `vlnav worlds generate`, seeded worlds of six families with
 //!   instructions checked feasible on the true map.
 //!
@@ -20,6 +22,7 @@
 
 pub mod aggregate;
 pub mod calibrate;
+pub mod jpeg_cost;
 pub mod metrics;
 pub mod paper;
 pub mod plot;

@@ -66,6 +66,11 @@ pub enum BenchCmd {
     /// Draws `vlnav bench fleet --json` lines (one file per series) as an SVG
     /// plot of cycle latency against the number of robots.
     Plot(PlotArgs),
+    /// What JPEG colour on the robots' uplink (the edge agent's --colour-codec
+    /// jpeg) costs NanoDet and the segmenter, and saves, per quality: recall
+    /// and box IoU against known boxes and against the raw frames' detections,
+    /// bytes, encode time, PSNR (docs/architecture.md, "Frames").
+    Jpeg(vlnav_eval::jpeg_cost::JpegCostArgs),
     /// The robots' side of `bench fleet` (started by it).
     #[command(hide = true)]
     Robots(RobotsArgs),

@@ -69,7 +69,8 @@ enum Cmd {
     Replay(vlnav::replay::ReplayArgs),
     /// Per-stage latency of a mission from its distributed trace.
     Profile(vlnav_traces::ProfileArgs),
-    /// Benchmarks: `vlnav bench fleet` (robots per gateway), `vlnav bench plot`.
+    /// Benchmarks: `vlnav bench fleet` (robots per gateway), `vlnav bench plot`,
+    /// `vlnav bench jpeg` (what JPEG colour costs the perception).
     #[command(subcommand)]
     Bench(vlnav::bench::BenchCmd),
     /// Run a detector on photos: one line per box (or JSON), annotated copies with --out.
@@ -282,6 +283,10 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             vlnav::bench::fleet(&args, &mut std::io::stdout()).await.map(|_| ())
         }
         Cmd::Bench(vlnav::bench::BenchCmd::Plot(args)) => vlnav::bench::plot(&args),
+        Cmd::Bench(vlnav::bench::BenchCmd::Jpeg(args)) => {
+            tokio::task::spawn_blocking(move || vlnav_eval::jpeg_cost::run(&args, &mut std::io::stdout())).await??;
+            Ok(())
+        }
         Cmd::Bench(vlnav::bench::BenchCmd::Robots(args)) => {
             // Each real robot has its own computer. Here they share two cores,
             // so many worker threads let the OS preempt a robot's rendering
