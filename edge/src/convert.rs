@@ -158,6 +158,19 @@ pub fn edge(kind: pb::edge_message::Kind) -> pb::EdgeMessage {
 mod tests {
     use super::*;
 
+    /// A first frame's metadata for `sim`'s camera, standing at the origin.
+    fn meta_for(sim: &vlnav_sim::Simulator, codecs: Codecs) -> FrameMeta<'static> {
+        FrameMeta {
+            robot_id: "husky-1",
+            seq: 0,
+            stamp: 0.0,
+            camera: sim_camera_info(sim.camera()),
+            odom: Pose2::default(),
+            odom_twist: Twist::ZERO,
+            codecs,
+        }
+    }
+
     #[test]
     fn u16_images_are_little_endian() {
         assert_eq!(u16_le(&[0x0102, 0xa0b0]), vec![0x02, 0x01, 0xb0, 0xa0]);
@@ -169,15 +182,7 @@ mod tests {
         let mut sim = vlnav_sim::Simulator::new(world, 0);
         sim.set_camera(sim.camera().clone().with_resolution(64, 48).unwrap());
         let f = sim.render();
-        let meta = FrameMeta {
-            robot_id: "husky-1",
-            seq: 3,
-            stamp: 0.3,
-            camera: sim_camera_info(sim.camera()),
-            odom: Pose2::default(),
-            odom_twist: Twist::ZERO,
-            codecs: Codecs::default(),
-        };
+        let meta = FrameMeta { seq: 3, stamp: 0.3, ..meta_for(&sim, Codecs::default()) };
         let m = sim_frame(meta.clone(), &f);
         let rgb = m.rgb.unwrap();
         assert_eq!((rgb.width, rgb.height, rgb.data.len()), (64, 48, 64 * 48 * 3));
@@ -203,15 +208,8 @@ mod tests {
         let f = sim.render();
         let (w, h) = (f.width, f.height);
         assert_eq!((w, h), (640, 480));
-        let meta = FrameMeta {
-            robot_id: "husky-1",
-            seq: 0,
-            stamp: 0.0,
-            camera: sim_camera_info(sim.camera()),
-            odom: Pose2::default(),
-            odom_twist: Twist::ZERO,
-            codecs: Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 85, depth: DepthCodec::Rvl },
-        };
+        let codecs = Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 85, depth: DepthCodec::Rvl };
+        let meta = meta_for(&sim, codecs);
         let m = sim_frame(meta, &f);
         let rgb = m.rgb.as_ref().unwrap();
         assert_eq!((rgb.encoding, rgb.width, rgb.height), (pb::ImageEncoding::Jpeg as i32, w, h));
