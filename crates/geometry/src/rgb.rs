@@ -93,11 +93,8 @@ pub fn decode(encoding: Encoding, width: u32, height: u32, data: &[u8]) -> Resul
             };
             // The JPEG decoder fills a cut-off scan with grey instead of failing; a truncated
             // upload must not be mistaken for a picture, so the end-of-image marker is required.
-            if encoding == Encoding::Jpeg && !jpeg_is_complete(data) {
-                return Err(ImageError::Decode {
-                    format: name,
-                    reason: format!("the data ({} bytes) ends without the end-of-image marker FF D9", data.len()),
-                });
+            if encoding == Encoding::Jpeg {
+                require_complete_jpeg(data)?;
             }
             // The header's size first (cheap): a few bytes that claim a large picture are
             // refused before the decoder allocates for it (or fills it with grey).
@@ -191,16 +188,23 @@ pub fn header_size(encoding: Encoding, data: &[u8]) -> Result<Option<(u32, u32)>
                     data.len()
                 ),
             })?;
-            if !jpeg_is_complete(data) {
-                return Err(ImageError::Decode {
-                    format: "JPEG",
-                    reason: format!("the data ({} bytes) ends without the end-of-image marker FF D9", data.len()),
-                });
-            }
+            require_complete_jpeg(data)?;
             size
         }
     };
     Ok(Some(size))
+}
+
+/// A JPEG must end with its end-of-image marker: the decoder fills a
+/// cut-off scan with grey instead of failing.
+fn require_complete_jpeg(data: &[u8]) -> Result<(), ImageError> {
+    if jpeg_is_complete(data) {
+        return Ok(());
+    }
+    Err(ImageError::Decode {
+        format: "JPEG",
+        reason: format!("the data ({} bytes) ends without the end-of-image marker FF D9", data.len()),
+    })
 }
 
 fn png_ihdr_size(data: &[u8]) -> Option<(u32, u32)> {
