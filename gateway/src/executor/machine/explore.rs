@@ -158,6 +158,8 @@ impl Mission {
                 // there, came to the chair off the route before the one on
                 // it: evaluation, lab); then on round from there.
                 let origin = match (f.predicted(stamp), course) {
+                    // An instance seen off the course waits for the look along it.
+                    (_, Some(c)) if f.course_first.is_some() => Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad)),
                     (Some(t), _) => Pose2::new(pose.x, pose.y, wrap(bearing(pose, &t) - p.scan_turn_rad)),
                     (None, Some(c)) if wrap(c - pose.theta).abs() > p.scan_turn_rad => {
                         Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad))
@@ -175,6 +177,10 @@ impl Mission {
                 f.explore = Explore::Look { frames_left: frames_left - 1, turn, leg, origin };
                 self.hold()
             }
+            // Looked around, and on, for long enough (or the exploration is
+            // exhausted, below): the instance seen without its reference is
+            // the target after all.
+            Explore::Look { .. } if f.reference_search_over(stamp) => self.take_set_aside(),
             Explore::Look { turn, leg, origin, .. } => match after_look(turn, leg, p) {
                 ExplorePlan::Turn(t) => {
                     let what = ExploreGoalFor::NextTurn { turn: t, leg, origin };
@@ -189,6 +195,7 @@ impl Mission {
                     tracing::debug!(leg = l, lead = ?f.fused, f_dist = query.f_dist, yaw = query.yaw, "search leg");
                     self.call(Pending::ExploreGoal(ExploreGoalFor::SearchLeg { leg: l }), Request::MoveGoal(query))
                 }
+                ExplorePlan::Ask if f.can_waive() => self.take_set_aside(),
                 ExplorePlan::Ask => {
                     let who = if f.person.is_empty() {
                         format!("the {}", f.target)

@@ -5,9 +5,10 @@
 
 use nalgebra::{Vector2, Vector3};
 use vlnav_geometry::camera::Projector;
+use vlnav_geometry::wrap_angle;
 
 use super::landmarks::remember_landmarks;
-use super::{Explore, Mission, Next, Pending, REFERENCE_PLACES, REFERENCE_SAME_M, Request};
+use super::{Explore, Mission, Next, Pending, REFERENCE_PLACES, REFERENCE_SAME_M, Request, bearing};
 use crate::config::ExecutorParams;
 use crate::executor::model::*;
 
@@ -41,6 +42,31 @@ const REFERENCE_MARGIN_M: f64 = 0.5;
 /// A sighting this close to an outvoted candidate's place is that object, m.
 const REJECTED_M: f64 = 0.75;
 
+/// A target described by a reference ("the bicycle next to the stop sign")
+/// stands next to it when its fused position is within this of a place
+/// where a box of the reference's class stood, m: the two objects' half
+/// sizes (up to 1 m each), the gap people still call "next to", and the
+/// footprint's and the fused position's own errors at 10 m (0.5 m each;
+/// docs/perception.md).
+const NEXT_TO_M: f64 = 3.0;
+/// How long the search for an instance next to its reference may go on
+/// once one was set aside, sensor s: a look-around (12 turns, up to 4 s
+/// each) and one search leg with its fan. The reference is often just too
+/// small for the detector at that range (a dining table is found in no
+/// frame beyond about 2.5 m; docs/perception.md), and a user would rather
+/// the robot went to the one it saw than searched on for minutes.
+const REFERENCE_SEARCH_S: f64 = 60.0;
+
+/// A candidate that passed the class vote with no box of the reference's
+/// class next to it: what it takes to go to it after all.
+#[derive(Clone, Debug)]
+pub(super) struct SetAside {
+    pub(super) fused: Vector3<f64>,
+    pub(super) goal: Goal,
+    pub(super) detection: Detection,
+    pub(super) range_m: f64,
+}
+
 #[derive(Debug)]
 pub(super) struct FindRun {
     pub(super) track_key: String,
@@ -68,6 +94,20 @@ pub(super) struct FindRun {
     pub(super) watched: u32,
     /// Places (odom) of candidates another class outvoted.
     pub(super) rejected: Vec<Vector2<f64>>,
+    /// Places (odom) of candidates that passed the vote with no box of the
+    /// reference's class next to them: set aside while the search looks for
+    /// one that has, and taken when it finds none.
+    pub(super) set_aside: Vec<SetAside>,
+    /// When the first candidate was set aside (sensor time).
+    pub(super) set_aside_since: Option<f64>,
+    /// The search found no instance next to its reference: the nearest one
+    /// set aside is the target after all.
+    pub(super) reference_waived: bool,
+    /// The route's course (odom heading), while the robot has not yet
+    /// looked along it: the step began facing more than a scan turn off it
+    /// (a MOVE that went round something), and an instance off the course
+    /// is confirmed only after the view along it showed none.
+    pub(super) course_first: Option<f64>,
     /// Where an earlier step saw an object of this class ([`remembered`]),
     /// until the exploration has driven toward it.
     pub(super) revisit: Option<Vector2<f64>>,
@@ -98,6 +138,53 @@ impl FindRun {
     /// consistent sightings before it is confirmed.
     pub(super) fn put_to_vote(&self) -> bool {
         self.person.is_empty() && !self.moving
+    }
+
+    /// The target is described by an object of another class, and only an
+    /// instance next to one may be confirmed.
+    fn needs_reference(&self) -> bool {
+        self.put_to_vote() && !self.reference_waived && self.reference.is_some_and(|c| c != self.class_id)
+    }
+
+    /// A box of the reference's class has stood within `NEXT_TO_M` of `at`.
+    fn next_to_reference(&self, at: &Vector2<f64>) -> bool {
+        self.reference_at.iter().any(|r| (r - at).norm() <= NEXT_TO_M)
+    }
+
+    /// `at` is where a candidate set aside stood, and still no reference
+    /// has been seen next to it.
+    fn set_aside_at(&self, at: &Vector2<f64>) -> bool {
+        self.needs_reference()
+            && self.set_aside.iter().any(|s| (s.fused.xy() - at).norm() <= CONSISTENT_M)
+            && !self.next_to_reference(at)
+    }
+
+    /// The search for an instance next to its reference has had its time
+    /// (`REFERENCE_SEARCH_S` since the first was set aside, at `stamp`),
+    /// and there is one to go back to.
+    pub(super) fn reference_search_over(&self, stamp: f64) -> bool {
+        self.can_waive() && self.set_aside_since.is_some_and(|t| stamp - t >= REFERENCE_SEARCH_S)
+    }
+
+    /// A candidate was set aside for want of its reference, and the
+    /// reference has not been waived yet.
+    pub(super) fn can_waive(&self) -> bool {
+        !self.reference_waived && !self.set_aside.is_empty()
+    }
+
+    /// Waives the reference: the candidate set aside nearest `from` is the
+    /// target after all (`None` when there is none).
+    fn waive_reference(&mut self, from: &Pose2) -> Option<SetAside> {
+        if !self.can_waive() {
+            return None;
+        }
+        let here = from.position();
+        let i = (0..self.set_aside.len()).min_by(|&i, &j| {
+            let d = |k: usize| (self.set_aside[k].fused.xy() - here).norm();
+            d(i).total_cmp(&d(j))
+        })?;
+        self.reference_waived = true;
+        Some(self.set_aside.swap_remove(i))
     }
 
     /// A candidate is under the vote: sighted, not yet confirmed.
@@ -295,6 +382,26 @@ impl Mission {
         }
     }
 
+    /// No instance next to its reference was found: the one set aside
+    /// nearest the robot is confirmed after all and driven to.
+    pub(super) fn take_set_aside(&mut self) -> Next {
+        let (pose, index) = (self.frame.pose, self.index as u32);
+        let Some(f) = self.find_mut() else { return self.hold() };
+        let Some(s) = f.waive_reference(&pose) else { return self.hold() };
+        tracing::debug!(target = ?s.fused, "no instance next to the reference: the one seen alone is the target");
+        (f.confirmed, f.fused, f.goal, f.explore) = (true, Some(s.fused), Some(s.goal), Explore::Idle);
+        self.emit(Event::TargetSeen {
+            index,
+            detection: s.detection,
+            target: Some(s.fused),
+            goal: Some(s.goal.pose),
+            range_m: s.range_m,
+            identity: String::new(),
+            identity_similarity: 0.0,
+        });
+        self.call(Pending::FindPlanned { goal: s.goal }, self.drive(s.goal))
+    }
+
     pub(super) fn locate(&mut self, detection: Detection, identity: String, similarity: f32) -> Next {
         let Some(f) = self.find() else { return self.hold() };
         let request = Request::Locate {
@@ -313,13 +420,20 @@ impl Mission {
         p: &ExecutorParams,
         observation: Option<(Detection, String, f32, Estimate)>,
     ) -> Next {
-        let stamp = self.frame.stamp;
+        let (stamp, pose) = (self.frame.stamp, self.frame.pose);
         let index = self.index as u32;
         let Some(f) = self.find_mut() else { return self.hold() };
-        // A sighting where an outvoted candidate stood is that object again.
+        if f.course_first.is_some_and(|c| wrap_angle(c - pose.theta).abs() <= p.scan_turn_rad / 2.0) {
+            f.course_first = None;
+        }
+        // A sighting where an outvoted candidate stood is that object again;
+        // one where a candidate was set aside for want of its reference is
+        // that one, unless a reference has been seen next to it since.
         let observation = observation.filter(|(_, _, _, est)| {
-            est.fused_target
-                .is_none_or(|t| !f.rejected.iter().any(|r| (r - Vector2::new(t.x, t.y)).norm() < REJECTED_M))
+            est.fused_target.is_none_or(|t| {
+                let at = Vector2::new(t.x, t.y);
+                !f.rejected.iter().any(|r| (r - at).norm() < REJECTED_M) && !f.set_aside_at(&at)
+            })
         });
         // A sighting far from the candidate being voted on is another object
         // or a false positive: it does not count for this one. (False
@@ -353,11 +467,35 @@ impl Mission {
                 // window first; a named person (ReID decides) or a moving
                 // target is confirmed by its sightings alone.
                 let voted = !f.put_to_vote() || f.watched >= p.confirm_window;
-                if !f.confirmed
+                let ready = !f.confirmed
                     && voted
                     && f.recent.count_ones() >= p.confirm_frames
-                    && f.votes_for >= VOTE_MARGIN * f.votes_against
-                {
+                    && f.votes_for >= VOTE_MARGIN * f.votes_against;
+                // Only where the reference has been seen elsewhere: then the
+                // target is likelier by it than here. Seen nowhere, it may
+                // just be too small for the detector at this range.
+                let alone = f.needs_reference()
+                    && !f.reference_at.is_empty()
+                    && f.fused.is_some_and(|t| !f.next_to_reference(&t.xy()));
+                let off_course = f
+                    .course_first
+                    .zip(f.fused)
+                    .is_some_and(|(c, t)| f.put_to_vote() && wrap_angle(bearing(pose, &t) - c).abs() > p.scan_turn_rad);
+                if ready && off_course && !alone {
+                    // "Move 8 m, then the motorcycle": the one ahead on the
+                    // course, if there is one, before one off to the side.
+                    tracing::debug!(course = ?f.course_first, "candidate off the course: look along the course first");
+                    return self.explore(p);
+                } else if ready && alone {
+                    // "The bicycle next to the stop sign", and none stood
+                    // next to this one: look on for one that has.
+                    if let (Some(t), Some(goal)) = (f.fused.take(), f.goal) {
+                        tracing::debug!(x = t.x, y = t.y, references = ?f.reference_at, "candidate with no reference next to it: set aside");
+                        f.set_aside.push(SetAside { fused: t, goal, detection: b, range_m: est.range_m });
+                        f.set_aside_since.get_or_insert(stamp);
+                    }
+                    f.new_track();
+                } else if ready {
                     tracing::debug!(target = ?f.fused, votes_for = f.votes_for, votes_against = f.votes_against, "target confirmed");
                     f.confirmed = true;
                     f.explore = Explore::Idle;

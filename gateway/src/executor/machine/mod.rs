@@ -47,7 +47,12 @@
 //!   A target described by another object ("the chair next to the table",
 //!   the step's `reference`): while it is unconfirmed, the instance whose
 //!   footprint stands nearest where a reference box has stood this step is
-//!   the candidate (docs/perception.md, "Relations").
+//!   the candidate; once a reference has been seen anywhere, it is
+//!   confirmed only with one within 3 m; one without is set aside, and
+//!   taken when a bounded search finds none with (docs/perception.md,
+//!   "Relations"). A step that begins facing more
+//!   than a scan turn off the route's course confirms an instance off the
+//!   course only after looking along it.
 //!   Objects of every class seen during the mission's FIND steps are
 //!   remembered where they stood (odom footprints, [`Landmark`]): a FIND
 //!   whose target is not in view, and whose class an earlier step saw,
@@ -532,6 +537,12 @@ impl Mission {
                 votes_against: 0,
                 watched: 0,
                 rejected: Vec::new(),
+                set_aside: Vec::new(),
+                set_aside_since: None,
+                reference_waived: false,
+                course_first: self
+                    .course
+                    .filter(|c| vlnav_geometry::wrap_angle(c - self.frame.pose.theta).abs() > p.scan_turn_rad),
                 // An unnamed fixed target only: people walk away.
                 revisit: (step.action == Action::Find && step.person.is_empty())
                     .then(|| remembered(&self.landmarks, step.class_id, self.index, p.confirm_frames, self.frame.pose))
