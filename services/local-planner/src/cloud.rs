@@ -1,6 +1,7 @@
 //! The obstacle cloud of one frame, in `base_link`.
 //!
-//! Depth pixels (every `stride`-th row and column) are back-projected and
+//! Depth pixels (every `stride`-th row and column at 640 pixels wide, the
+//! same angle apart at other widths) are back-projected and
 //! moved to `base_link` with the camera mount; heights are measured above the
 //! floor (`ground_z` in `base_link`, 0 when `base_link` sits on the floor).
 //! Like CMU's terrain classification: below `ground_height` a point is floor;
@@ -48,12 +49,32 @@ pub struct CloudParams {
     pub max_range: f64,
     /// Downsampling voxel, m.
     pub voxel: f64,
-    /// Use every `stride`-th depth row and column.
+    /// Use every `stride`-th depth row and column of a 640-pixel-wide
+    /// image (the D455's), and the same angular spacing at other widths
+    /// ([`CloudParams::stride_for`]).
     pub stride: usize,
     /// A pixel in a person's box belongs to the person within this depth of
     /// the box's near depth, m (a body's depth plus the D455's error at a
     /// few metres).
     pub person_band_m: f64,
+}
+
+/// The image width `CloudParams::stride` is given for, pixels.
+pub const STRIDE_WIDTH: u32 = 640;
+
+impl CloudParams {
+    /// The stride for an image `width` pixels wide: `stride` scaled to the
+    /// width, at least 1, so the sampled rows and columns lie the same angle
+    /// apart at any resolution (0.67° on the D455's 87° view). A 160-pixel
+    /// image sampled every 4th column had one column every 2.7°: a door
+    /// jamb seen end-on fell between columns, and most of the 1° bins of
+    /// what the frame saw (`SeenRange`) held no column, so a remembered
+    /// cell there was never forgotten and a person walking there never seen
+    /// to move (docs/evaluation.md, "Depth sampled at the same angle").
+    pub fn stride_for(&self, width: u32) -> usize {
+        let scaled = (self.stride as f64 * f64::from(width) / f64::from(STRIDE_WIDTH)).round();
+        (scaled as usize).max(1)
+    }
 }
 
 impl Default for CloudParams {
@@ -333,7 +354,7 @@ impl CloudBuilder {
     /// central part): the lower quartile of the valid depth sampled in the
     /// box's middle half across and middle 70 % down.
     fn person_depths(&self, cam: &Camera, depth: &DepthView<'_>, people: &[PixelBox]) -> Vec<Option<f64>> {
-        let stride = self.params.stride.max(1);
+        let stride = self.params.stride_for(cam.width);
         let (lo, hi) = (cam.depth_min_m * 1000.0, cam.depth_max_m * 1000.0);
         people
             .iter()
@@ -363,7 +384,7 @@ impl CloudBuilder {
         let mut sums = vec![(0.0, 0.0, 0usize); people.len()];
         let k = cam.intrinsics;
         let t = cam.mount.optical_to_base();
-        let stride = self.params.stride.max(1);
+        let stride = self.params.stride_for(cam.width);
         let (lo, hi) = (cam.depth_min_m * 1000.0, cam.depth_max_m * 1000.0);
         let origin = t.apply(&Vector3::zeros());
         let mut seen = SeenRange::new(Vector2::new(origin.x, origin.y));
@@ -545,6 +566,57 @@ mod tests {
         // No boxes, no people.
         let c = b.from_depth(&cam, &view, &[], &[]);
         assert!(c.people.is_empty() && c.cells.iter().all(|c| c.person == 0));
+    }
+
+    #[test]
+    fn every_bearing_in_a_coarse_image_is_seen() {
+        // The evaluation's 160×120 D455 (fx 85.8) at the default stride (4
+        // at 640 pixels): every 4th column would lie 2.7° apart and leave most
+        // 1° bins without one; every column lies 0.67° apart. A wall 3 m
+        // ahead fills the view; a post 1.5 m ahead covers 10°–20°.
+        let (w, h, fx) = (160usize, 120usize, 85.8);
+        let cam = Camera {
+            width: w as u32,
+            height: h as u32,
+            intrinsics: Intrinsics { fx, fy: fx, cx: 79.5, cy: 59.5 },
+            mount: Mount { translation: Vector3::new(0.0, 0.0, 0.6), ..Mount::default() },
+            depth_min_m: 0.3,
+            depth_max_m: 10.0,
+        };
+        let mut depth = vec![0.0; w * h];
+        for v in 0..h {
+            for u in 0..w {
+                let xn = (u as f64 - 79.5) / fx;
+                let bearing = -xn.atan();
+                depth[v * w + u] = if (10f64.to_radians()..20f64.to_radians()).contains(&bearing) { 1.5 } else { 3.0 };
+            }
+        }
+        let bytes = encode_depth_mm(&depth);
+        let view = DepthView::new(w as u32, h as u32, &bytes).unwrap();
+        let mut b = CloudBuilder::new(CloudParams::default());
+        let seen = b.from_depth(&cam, &view, &[], &[]).seen.expect("built from depth");
+        let at = |deg: f64, r: f64| Vector2::new(r * deg.to_radians().cos(), r * deg.to_radians().sin());
+        let half_fov = (79.5 / fx).atan().to_degrees();
+        let mut deg = -half_fov + 1.0;
+        while deg < half_fov - 1.0 {
+            // A bin holding the post's edge holds the wall's range too.
+            if !(9.0..21.0).contains(&deg) {
+                assert!(seen.reaches(&at(deg, 2.5), 0.0), "the wall at {deg:.1}° is seen");
+            } else if (10.0..20.0).contains(&deg) {
+                assert!(!seen.reaches(&at(deg, 2.5), 0.05), "behind the post at {deg:.1}°");
+            }
+            assert!(seen.reaches(&at(deg, 1.2), 0.0), "in front of everything at {deg:.1}°");
+            deg += 0.25;
+        }
+        assert_eq!(CloudParams::default().stride_for(160), 1);
+        assert_eq!(CloudParams::default().stride_for(640), 4);
+        assert_eq!(CloudParams::default().stride_for(1280), 8);
+        // Nothing beyond the view is seen.
+        assert!(!seen.reaches(&at(half_fov + 3.0, 1.0), 0.0));
+        assert!(!seen.reaches(&at(-half_fov - 3.0, 1.0), 0.0));
+        // Moving detection sees past a person-sized gap in the middle of the
+        // wall's view, within its one-degree outline margin.
+        assert!(seen.free_beyond(&at(-20.0, 2.0), 0.2, 2f64.to_radians()));
     }
 
     #[test]

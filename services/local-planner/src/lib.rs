@@ -77,7 +77,8 @@ pub struct Options {
     /// Points above this height are overhead and ignored, m.
     #[arg(long = "local-planner-max-height", env = "VLNAV_LOCAL_PLANNER_MAX_HEIGHT_M", default_value_t = 1.2)]
     pub max_height_m: f64,
-    /// Use every n-th depth row and column.
+    /// Use every n-th depth row and column of a 640-pixel-wide image; the
+    /// same angular spacing at other widths (every column at 160 pixels).
     #[arg(long = "local-planner-depth-stride", env = "VLNAV_LOCAL_PLANNER_DEPTH_STRIDE", default_value_t = 4)]
     pub depth_stride: usize,
     /// Depth bounds used when a frame's CameraInfo leaves them at 0, m.

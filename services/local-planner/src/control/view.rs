@@ -45,7 +45,12 @@ impl View {
     }
 
     pub(super) fn sees(&self, p: &Vector2<f64>, near: f64) -> bool {
-        p.norm() >= near && wrap_angle(p.y.atan2(p.x) - self.yaw).abs() < self.half_fov
+        p.norm() >= near && self.in_angle(p)
+    }
+
+    /// Whether `p` (`base_link`) lies within the view's angle, at any range.
+    pub(super) fn in_angle(&self, p: &Vector2<f64>) -> bool {
+        wrap_angle(p.y.atan2(p.x) - self.yaw).abs() < self.half_fov
     }
 
     /// Where something `top_m` high (above the floor) comes into the image
