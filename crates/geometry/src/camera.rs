@@ -12,6 +12,20 @@
 
 use nalgebra::{Matrix3, Rotation3, Vector3};
 
+/// Width of the frames a pixel stride is given for: the D455's 640×480
+/// streams (docs/design.md).
+pub const STRIDE_REFERENCE_WIDTH: u32 = 640;
+
+/// A stride given for a 640-wide frame (every n-th row and column), for a
+/// frame `width` pixels wide: the same angle between sampled pixels, at
+/// least every pixel. A 160×120 frame taken every 4th pixel keeps one pixel
+/// in 16, its sampled columns 2.7° apart.
+pub fn scaled_stride(stride_at_reference: usize, width: u32) -> usize {
+    let width = width.max(1) as usize;
+    let reference = STRIDE_REFERENCE_WIDTH as usize;
+    ((stride_at_reference * width + reference / 2) / reference).max(1)
+}
+
 /// Pinhole intrinsics, pixels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Intrinsics {

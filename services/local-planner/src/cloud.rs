@@ -59,9 +59,6 @@ pub struct CloudParams {
     pub person_band_m: f64,
 }
 
-/// The image width `CloudParams::stride` is given for, pixels.
-pub const STRIDE_WIDTH: u32 = 640;
-
 impl CloudParams {
     /// The stride for an image `width` pixels wide: `stride` scaled to the
     /// width, at least 1, so the sampled rows and columns lie the same angle
@@ -72,8 +69,7 @@ impl CloudParams {
     /// cell there was never forgotten and a person walking there never seen
     /// to move (docs/evaluation.md, "Depth sampled at the same angle").
     pub fn stride_for(&self, width: u32) -> usize {
-        let scaled = (self.stride as f64 * f64::from(width) / f64::from(STRIDE_WIDTH)).round();
-        (scaled as usize).max(1)
+        vlnav_geometry::camera::scaled_stride(self.stride, width)
     }
 }
 

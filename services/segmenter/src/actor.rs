@@ -22,20 +22,11 @@ pub enum Msg {
     Segment { job: SegmentJob, reply: oneshot::Sender<Result<Segmentation, SegmentError>> },
 }
 
-/// Width of the frames the default point stride is set for: the D455's
-/// 640×480 colour stream (docs/design.md).
-pub const STRIDE_REFERENCE_WIDTH: u32 = 640;
-
 /// The service's default stride (`--segmenter-point-stride`, every n-th
-/// pixel of a 640-wide frame) for a frame `width` pixels wide: the same
-/// spacing of points in the scene, at least every pixel. A 160×120 frame
+/// pixel of a 640-wide frame) scaled to a frame's width: a 160×120 frame
 /// taken every 4th pixel would keep one pixel in 16 of a cable one pixel
 /// wide, and the cable's end would be known only to 4 pixels (14 cm at 3 m).
-pub fn scaled_stride(stride_at_reference: usize, width: u32) -> usize {
-    let width = width.max(1) as usize;
-    let reference = STRIDE_REFERENCE_WIDTH as usize;
-    ((stride_at_reference * width + reference / 2) / reference).max(1)
-}
+pub use vlnav_geometry::camera::{STRIDE_REFERENCE_WIDTH, scaled_stride};
 
 pub struct SegmenterActor {
     backend: Box<dyn SegmentBackend>,
