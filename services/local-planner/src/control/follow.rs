@@ -14,7 +14,8 @@
 //!
 //! Each command then passes the footprint guard (`guard.rs`); a robot the
 //! guard stops within the goal's position tolerance has reached it, one
-//! stopped farther away creeps (`creep.rs`), and a command that would close
+//! stopped farther away creeps (`creep.rs`) or, wedged, backs out
+//! (`backout.rs`), and a command that would close
 //! on a walking person is cut to what keeps clear of them (`walkers.rs`).
 
 use nalgebra::Vector2;
@@ -94,8 +95,9 @@ impl RobotState {
             return self.stop(out, StepStatus::Reached);
         }
         let (v, w) = if v == 0.0 && w == 0.0 { self.creep(goal_base, dt, p) } else { (v, w) };
+        let (v, w) = if v == 0.0 && w == 0.0 { self.back_out(input, goal_base, dt, p) } else { (v, w) };
         if v == 0.0 && w == 0.0 {
-            self.log_blocked(input, p.sweep_radius_m, "the footprint guard stops every command");
+            self.log_blocked(input, 1.0, "the footprint guard stops every command");
         }
         let (v, w) = if self.people_closer(input, v, w, p) {
             // Yield to a walker: the parts of the command that keep clear of

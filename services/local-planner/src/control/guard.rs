@@ -25,6 +25,7 @@
 use nalgebra::Vector2;
 
 use super::{FollowParams, RobotState};
+use crate::cloud::Cell;
 
 impl RobotState {
     /// Whether the arc (v, ω) held for `horizon` s brings a cell the body
@@ -35,7 +36,27 @@ impl RobotState {
     /// the margin already; a cell inside the body — noise, or contact made —
     /// does not hold the robot).
     pub(super) fn footprint_hits(&self, v: f64, w: f64, horizon: f64, p: &FollowParams) -> bool {
+        self.footprint_hits_from((0.0, 0.0, 0.0), v, w, horizon, p)
+    }
+
+    /// [`Self::footprint_hits`] for an arc that starts at `from` (x, y,
+    /// heading in `base_link`) instead of where the robot stands.
+    pub(super) fn footprint_hits_from(
+        &self,
+        from: (f64, f64, f64),
+        v: f64,
+        w: f64,
+        horizon: f64,
+        p: &FollowParams,
+    ) -> bool {
         const SAMPLES: usize = 6;
+        let (fs, fc) = (from.2.sin() as f32, from.2.cos() as f32);
+        let (fx, fy) = (from.0 as f32, from.1 as f32);
+        // A cell in the frame of the arc's start.
+        let local = |c: &Cell| -> (f32, f32) {
+            let (dx, dy) = (c.x - fx, c.y - fy);
+            (fc * dx + fs * dy, -fs * dx + fc * dy)
+        };
         let (hl, hw) = ((p.half_length_m + p.guard_margin_m) as f32, (p.half_width_m + p.guard_margin_m) as f32);
         let (bl, bw) = (p.half_length_m as f32, p.half_width_m as f32);
         let inside = |x: f32, y: f32| x.abs() <= hl && y.abs() <= hw;
@@ -50,15 +71,15 @@ impl RobotState {
         self.cloud
             .cells
             .iter()
-            .filter(|c| {
-                c.keeps_out() && c.x * c.x + c.y * c.y <= reach * reach && !(c.x.abs() <= bl && c.y.abs() <= bw)
-            })
-            .any(|c| {
+            .filter(|c| c.keeps_out())
+            .map(local)
+            .filter(|&(cx, cy)| cx * cx + cy * cy <= reach * reach && !(cx.abs() <= bl && cy.abs() <= bw))
+            .any(|(cx, cy)| {
                 // The rectangle the cell must stay out of: the body for a
                 // cell already within the margin, else the inflated one.
-                let (l, w) = if inside(c.x, c.y) { (bl, bw) } else { (hl, hw) };
+                let (l, w) = if inside(cx, cy) { (bl, bw) } else { (hl, hw) };
                 poses.iter().any(|&(x, y, cs, sn)| {
-                    let (dx, dy) = (c.x - x, c.y - y);
+                    let (dx, dy) = (cx - x, cy - y);
                     (cs * dx + sn * dy).abs() <= l && (-sn * dx + cs * dy).abs() <= w
                 })
             })

@@ -266,7 +266,16 @@ impl RobotState {
                 )
             })
             .collect();
-        tracing::debug!(stamp = input.stamp, ?cells, "{why}");
+        // This frame's cells the body keeps out of (fresh and remembered), in
+        // `base_link`: what the guard and the paths actually see.
+        let frame: Vec<String> = self
+            .cloud
+            .cells
+            .iter()
+            .filter(|c| c.keeps_out() && f64::from(c.x.hypot(c.y)) < radius)
+            .map(|c| format!("({:.2}, {:.2}){}", c.x, c.y, if c.no_go { " no-go" } else { "" }))
+            .collect();
+        tracing::debug!(stamp = input.stamp, ?cells, ?frame, "{why}");
     }
 
     /// The remembered cells the body keeps out of that stand still and are

@@ -14,6 +14,7 @@
 //! | `follow.rs` | path following: the chosen path's look-ahead point to (v, ω) |
 //! | `guard.rs` | the footprint guard every command passes |
 //! | `creep.rs` | a robot the guard stops creeps on toward the goal's side |
+//! | `backout.rs` | a robot the guard and the creep leave wedged backs out, then goes on |
 //! | `behind.rs` | walkers who alone turn the paths far off are followed, not gone round |
 //! | `walkers.rs` | no command closes on a walking person; a way blocked near a person is WAITING |
 //! | `giveway.rs` | a robot that waited for a person backs away along its own trail |
@@ -29,6 +30,7 @@
 //! stop short: stopping at the tolerance circle left every approach about
 //! 0.26 m short of the asked distance (docs/design.md §6).
 
+mod backout;
 mod behind;
 mod creep;
 mod detour;
@@ -57,6 +59,7 @@ pub use view::View;
 use crate::cloud::ObstacleCloud;
 use crate::people::Tracker;
 use crate::planner::{Planner, Scratch, Selection};
+use backout::BackOut;
 use detour::{Detour, DetourGrid};
 use giveway::GiveWay;
 use goal::GoalMove;
@@ -140,6 +143,8 @@ pub struct RobotState {
     detour: Option<Detour>,
     /// The robot's trail and how it gave way to people.
     give_way: GiveWay,
+    /// A manoeuvre out of a wedge under way (`backout.rs`).
+    back_out: Option<BackOut>,
 }
 
 impl RobotState {
@@ -197,6 +202,12 @@ impl RobotState {
         if distance <= p.arrive_m || (distance <= goal.position_tolerance && goal_base.x <= p.arrive_m) {
             self.rotating = false;
             return self.stop(out, StepStatus::Reached);
+        }
+        if let Some((v, w)) = self.backing_out(&input, dt, p) {
+            // Out of a wedge first; the paths take over when it is done.
+            let mut out = self.stop(out, StepStatus::Moving);
+            (out.linear, out.angular) = (v, w);
+            return out;
         }
         // On a detour, toward its waypoint, and the distance left is the way's.
         let detouring = self.detour_target(&input, &goal_at, p);
@@ -263,6 +274,7 @@ impl RobotState {
             }
             self.last_goal = Some(input.goal);
             self.detour = None;
+            self.back_out = None;
             self.progress = None;
             self.rotating = false;
             self.aligned = false;
