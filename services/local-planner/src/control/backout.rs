@@ -10,8 +10,9 @@
 //! the goal lies ahead, the robot searches two-part manoeuvres: back along
 //! a straight line or an arc (`CREEP_CURVATURES`, either side) for
 //! `BACK_STEP_S`, 2·`BACK_STEP_S`, … s — never farther than the sweep's own
-//! backing limit (`near_memory_m` less `sweep_radius_m`, 0.35 m: behind the
-//! camera only memory knows the floor) — then on along a forward arc or
+//! backing limit (`near_memory_m` less `sweep_radius_m`, 0.35 m), and only
+//! where the robot's centre has been (its trail, as the give-way backs:
+//! `giveway.rs`; behind, the camera sees nothing) — then on along a forward arc or
 //! straight, driven for `ON_S`, which must keep the footprint clear for
 //! twice that from where the backing ends (one clear only for the part
 //! driven leads straight back into the wedge). It takes the way on that
@@ -73,7 +74,13 @@ impl RobotState {
         for i in 1..=steps {
             let back_s = f64::from(i) * BACK_STEP_S;
             for &back in &backs {
-                if !self.clear_for(back, back_s, dt, p) || self.people_closer(input, back.0, back.1, p) {
+                // Behind, only over ground the robot's centre has been on.
+                let samples = (e * back_s / 0.05).ceil() as u32;
+                let known = (1..=samples).all(|k| {
+                    let (x, y, _) = arc_pose(back.0, back.1, back_s * f64::from(k) / f64::from(samples));
+                    self.on_trail(&input.pose, &Vector2::new(x, y))
+                });
+                if !known || !self.clear_for(back, back_s, dt, p) || self.people_closer(input, back.0, back.1, p) {
                     continue;
                 }
                 let from = arc_pose(back.0, back.1, back_s);
@@ -148,6 +155,10 @@ mod tests {
     /// into it.
     fn wedged() -> RobotState {
         let mut state = RobotState::default();
+        // It drove in along +x: the last 3 m behind it are its trail.
+        for i in 0..=30 {
+            state.give_way.record(Vector2::new(-3.0 + 0.1 * f64::from(i), 0.0));
+        }
         for i in 0..8 {
             for j in 0..6 {
                 let (x, y) = (0.56 + 0.05 * i as f32, 0.26 + 0.05 * j as f32);
@@ -193,7 +204,7 @@ mod tests {
     }
 
     #[test]
-    fn a_robot_with_no_room_behind_or_a_goal_behind_does_not_back_out() {
+    fn a_robot_with_no_room_or_no_trail_behind_or_a_goal_behind_does_not_back_out() {
         let p = FollowParams::default();
         let empty = ObstacleCloud::default();
         let input = drive_to(10.0, Pose2::new(0.0, 0.0, 0.0), 6.0, &empty, view_ahead());
@@ -205,6 +216,10 @@ mod tests {
             .extend(with_cells(&(0..20).map(|i| (-0.6, -0.5 + 0.05 * i as f32)).collect::<Vec<_>>()).cloud.cells);
         assert_eq!(boxed.back_out(&input, &Vector2::new(4.0, -1.5), 0.2, &p), (0.0, 0.0));
         assert_eq!(boxed.back_out, None);
+        // Where it has not been, it does not back: behind, the camera sees nothing.
+        let mut fresh = wedged();
+        fresh.give_way.trail.clear();
+        assert_eq!(fresh.back_out(&input, &Vector2::new(4.0, -1.5), 0.2, &p), (0.0, 0.0));
         // A goal behind is the creep's (it backs straight toward it).
         let mut state = wedged();
         assert_eq!(state.back_out(&input, &Vector2::new(-2.0, 0.0), 0.2, &p), (0.0, 0.0));

@@ -37,7 +37,7 @@ const TRAIL_STEP_M: f64 = 0.1;
 pub(super) const TRAIL_KEEP_M: f64 = 3.0;
 /// A place the robot backs over is known when its centre passed within
 /// this distance of it, m.
-const ON_TRAIL_M: f64 = 0.15;
+pub(super) const ON_TRAIL_M: f64 = 0.15;
 /// Room kept beyond the body's sides and rear from remembered cells and
 /// from people tracked behind, m.
 const LANE_MARGIN_M: f64 = 0.1;
@@ -119,6 +119,13 @@ impl RobotState {
         }
     }
 
+    /// Whether `at` (`base_link` of `pose`) is within `ON_TRAIL_M` of where
+    /// the robot's centre has been.
+    pub(super) fn on_trail(&self, pose: &Pose2, at: &Vector2<f64>) -> bool {
+        let q = pose.transform(at);
+        self.give_way.trail.iter().any(|t| (t - q).norm() <= ON_TRAIL_M)
+    }
+
     /// Whether backing straight `back` m is over known, free ground: each
     /// place of the centre on the way within `ON_TRAIL_M` of the trail, no
     /// remembered cell in the body's lane that far back, and no one tracked
@@ -126,10 +133,8 @@ impl RobotState {
     fn free_behind(&self, input: &StepInput<'_>, p: &FollowParams, back: f64) -> bool {
         let pose = input.pose;
         let samples = (back / 0.05).ceil().max(1.0) as usize;
-        let on_trail = (1..=samples).all(|k| {
-            let q = pose.transform(&Vector2::new(-back * k as f64 / samples as f64, 0.0));
-            self.give_way.trail.iter().any(|t| (t - q).norm() <= ON_TRAIL_M)
-        });
+        let on_trail =
+            (1..=samples).all(|k| self.on_trail(&pose, &Vector2::new(-back * k as f64 / samples as f64, 0.0)));
         if !on_trail {
             return false;
         }
