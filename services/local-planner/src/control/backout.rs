@@ -23,6 +23,7 @@
 //! person in the way: that is waited for (`walkers.rs`).
 
 use nalgebra::Vector2;
+use vlnav_geometry::Pose2;
 
 use super::creep::CREEP_CURVATURES;
 use super::guard::arc_pose;
@@ -133,8 +134,7 @@ impl RobotState {
 /// `base_link`), ends.
 fn way_on_end(from: (f64, f64, f64), on: (f64, f64)) -> Vector2<f64> {
     let (x, y, _) = arc_pose(on.0, on.1, ON_S);
-    let (s, c) = from.2.sin_cos();
-    Vector2::new(from.0 + c * x - s * y, from.1 + s * x + c * y)
+    Pose2::new(from.0, from.1, from.2).transform(&Vector2::new(x, y))
 }
 
 #[cfg(test)]
