@@ -3,6 +3,16 @@
 //! health (mutual TLS, the gateway's certificate), submit the paper's Case 2
 //! instruction with the operator token and watch it to
 //! MISSION_STATE_SUCCEEDED in the demo world.
+//!
+//! The stack runs as `vlnav up` does by default — realistic perception,
+//! the robot in lockstep — not with the oracle the plumbing tests use:
+//! this is the mission a user's first session drives. The robot sends
+//! frames of its frozen world while it waits for the mission, and each
+//! draws new sensor noise, so how long grpcurl takes before it submits
+//! changes the course the way another seed would (`vlnav demo --seed`).
+//! With oracle perception the demo hall's statue is a person whose
+//! clearance the paths do not keep, and some seeds end asking for the
+//! way past it (docs/evaluation.md, "Known gaps").
 
 use std::time::Duration;
 
@@ -10,7 +20,7 @@ use vlnav_e2e::{CASE_2, TestStack, grpcurl_with, json_objects, tool};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
-    let t = TestStack::start(|_| {}).await;
+    let t = TestStack::start(|a| a.perception = vlnav_runtime::perception::PerceptionMode::Realistic).await;
     let addr = t.addr();
     let sec = t.security();
     let op = t.grpcurl_auth(&sec.operator_token);
@@ -84,6 +94,7 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
         tokio::io::AsyncReadExt::read_to_string(&mut stdout, &mut text).await.map(|_| text)
     });
     let deadline = tokio::time::Instant::now() + Duration::from_secs(600);
+    let mut asked = None;
     let status = loop {
         tokio::select! {
             status = watch.wait() => break status.expect("grpcurl exits"),
@@ -91,12 +102,18 @@ async fn case_2_through_grpcurl_succeeds_and_every_step_is_watched() {
                 let got = grpcurl_with(&viewer, &["-d", &get_body, &addr, "vlnav.v1.MissionService/GetMission"])
                     .expect("GetMission");
                 let m: serde_json::Value = serde_json::from_str(&got).expect("JSON");
-                assert_ne!(m["state"], "MISSION_STATE_AWAITING_CLARIFICATION", "the mission asked: {}", m["clarification"]);
+                if m["state"] == "MISSION_STATE_AWAITING_CLARIFICATION" {
+                    asked = Some(m["clarification"].to_string());
+                    watch.start_kill().expect("the watch stops");
+                    break watch.wait().await.expect("grpcurl exits");
+                }
                 assert!(tokio::time::Instant::now() < deadline, "the mission did not finish within 10 minutes: {got}");
             }
         }
     };
     let events = read.await.unwrap().expect("grpcurl's output");
+    // A question is a failure; the events watched so far say where it came.
+    assert!(asked.is_none(), "the mission asked: {}; events:\n{events}", asked.unwrap_or_default());
     assert!(status.success(), "WatchMission: {status}; printed:\n{events}");
     let events = json_objects(&events);
     let kinds: Vec<String> = events
