@@ -76,10 +76,9 @@ impl RobotState {
             let back_s = f64::from(i) * BACK_STEP_S;
             for &back in &backs {
                 // Behind, only over ground the robot's centre has been on.
-                let samples = (e * back_s / 0.05).ceil() as u32;
-                let known = (1..=samples).all(|k| {
-                    let (x, y, _) = arc_pose(back.0, back.1, back_s * f64::from(k) / f64::from(samples));
-                    self.on_trail(&input.pose, &Vector2::new(x, y))
+                let known = self.on_trail_along(&input.pose, e * back_s, |k, n| {
+                    let (x, y, _) = arc_pose(back.0, back.1, back_s * f64::from(k) / f64::from(n));
+                    Vector2::new(x, y)
                 });
                 if !known || !self.clear_for(back, back_s, dt, p) || self.people_closer(input, back.0, back.1, p) {
                     continue;

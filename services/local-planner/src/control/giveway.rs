@@ -37,7 +37,9 @@ const TRAIL_STEP_M: f64 = 0.1;
 pub(super) const TRAIL_KEEP_M: f64 = 3.0;
 /// A place the robot backs over is known when its centre passed within
 /// this distance of it, m.
-pub(super) const ON_TRAIL_M: f64 = 0.15;
+const ON_TRAIL_M: f64 = 0.15;
+/// A way over the trail is checked at places this far apart, m.
+const TRAIL_CHECK_M: f64 = 0.05;
 /// Room kept beyond the body's sides and rear from remembered cells and
 /// from people tracked behind, m.
 const LANE_MARGIN_M: f64 = 0.1;
@@ -126,15 +128,21 @@ impl RobotState {
         self.give_way.trail.iter().any(|t| (t - q).norm() <= ON_TRAIL_M)
     }
 
+    /// Whether a way of `length` m from `pose` keeps the centre within
+    /// `ON_TRAIL_M` of the trail, checked every `TRAIL_CHECK_M`: `at(k, n)`
+    /// is the place (`base_link` of `pose`) k n-ths of the way along.
+    pub(super) fn on_trail_along(&self, pose: &Pose2, length: f64, at: impl Fn(u32, u32) -> Vector2<f64>) -> bool {
+        let n = (length / TRAIL_CHECK_M).ceil().max(1.0) as u32;
+        (1..=n).all(|k| self.on_trail(pose, &at(k, n)))
+    }
+
     /// Whether backing straight `back` m is over known, free ground: each
     /// place of the centre on the way within `ON_TRAIL_M` of the trail, no
     /// remembered cell in the body's lane that far back, and no one tracked
     /// behind the robot within `PERSON_MARGIN_M` of that lane.
     fn free_behind(&self, input: &StepInput<'_>, p: &FollowParams, back: f64) -> bool {
         let pose = input.pose;
-        let samples = (back / 0.05).ceil().max(1.0) as usize;
-        let on_trail =
-            (1..=samples).all(|k| self.on_trail(&pose, &Vector2::new(-back * k as f64 / samples as f64, 0.0)));
+        let on_trail = self.on_trail_along(&pose, back, |k, n| Vector2::new(-back * f64::from(k) / f64::from(n), 0.0));
         if !on_trail {
             return false;
         }
