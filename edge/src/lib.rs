@@ -7,7 +7,8 @@
 //! Drivers: `sim` (the [`vlnav_sim`] simulator, real time or lockstep),
 //! `ros1` (a ROS 1 node: `/cmd_vel` out; odometry and RealSense topics in)
 //! and `ros2` (a ROS 2 node on DDS, cargo feature `ros2`: `<ns>/cmd_vel` out;
-//! odometry, RealSense, e-stop and battery topics in).
+//! odometry, RealSense, e-stop and battery topics in). For load generators,
+//! [`replay::run_replay`] drives a robot that sends recorded frames again.
 //!
 //! For evaluation, [`run_with`] takes [`Hooks`]: an observer channel that
 //! receives one [`StepRecord`] per frame (with the simulator's ground truth),
@@ -17,6 +18,7 @@
 
 pub mod convert;
 pub mod link;
+pub mod replay;
 pub mod ros1;
 #[cfg(feature = "ros2")]
 pub mod ros2;

@@ -32,6 +32,29 @@ pub(crate) fn limits_of(p: &vlnav_sim::HuskyParams) -> Limits {
     }
 }
 
+/// What a session drives: a world that gives the next frame and moves the
+/// robot by a command for one frame period. The simulator renders each
+/// frame ([`SimRobot`]); a replay sends recorded frames again
+/// (`crate::replay`).
+pub(crate) trait World {
+    /// The next frame and the odometry at it.
+    fn capture(&mut self) -> (pb::SensorFrame, pb::OdometryUpdate);
+    /// Applies `cmd` for one frame period.
+    fn step(&mut self, cmd: Twist);
+    /// Sensor time, seconds.
+    fn time(&self) -> f64;
+    /// One frame period, seconds.
+    fn period(&self) -> f64;
+    /// Frames captured so far.
+    fn frames(&self) -> u64;
+    fn reset_odometry(&mut self);
+    fn odometry(&self) -> vlnav_sim::Pose2;
+    /// Ground truth, where the world knows it.
+    fn truth(&self) -> Option<vlnav_sim::Truth>;
+    /// `--max-sim-time-s` reached.
+    fn time_is_up(&self) -> bool;
+}
+
 struct SimRobot {
     sim: Simulator,
     frame: vlnav_sim::Frame,
@@ -43,8 +66,8 @@ struct SimRobot {
     codecs: crate::Codecs,
 }
 
-impl SimRobot {
-    fn capture(&mut self) -> (pb::SensorFrame, pb::OdometryUpdate, vlnav_sim::Truth, vlnav_sim::Odometry) {
+impl World for SimRobot {
+    fn capture(&mut self) -> (pb::SensorFrame, pb::OdometryUpdate) {
         self.sim.render_into(&mut self.frame);
         let truth = self.sim.truth();
         let odom = self.sim.odometry();
@@ -66,15 +89,39 @@ impl SimRobot {
         let odo =
             pb::OdometryUpdate { stamp, pose: Some(pose_to_proto(&odom.pose)), twist: Some(convert::twist(&wheel)) };
         self.seq += 1;
-        (frame, odo, truth, odom)
-    }
-
-    fn time_is_up(&self) -> bool {
-        self.max_time.is_some_and(|m| self.sim.time() >= m - 1e-9)
+        (frame, odo)
     }
 
     fn step(&mut self, cmd: Twist) {
         self.sim.step(cmd, self.period);
+    }
+
+    fn time(&self) -> f64 {
+        self.sim.time()
+    }
+
+    fn period(&self) -> f64 {
+        self.period
+    }
+
+    fn frames(&self) -> u64 {
+        self.seq
+    }
+
+    fn reset_odometry(&mut self) {
+        self.sim.reset_odometry()
+    }
+
+    fn odometry(&self) -> vlnav_sim::Pose2 {
+        self.sim.odometry().pose
+    }
+
+    fn truth(&self) -> Option<vlnav_sim::Truth> {
+        Some(self.sim.truth())
+    }
+
+    fn time_is_up(&self) -> bool {
+        self.max_time.is_some_and(|m| self.sim.time() >= m - 1e-9)
     }
 }
 
@@ -108,11 +155,25 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
         max_time: opts.max_sim_time_s,
         codecs: opts.codecs(),
     };
-    let mut gov = Governor::new(desc.limits, opts.deadman_timeout_s);
+    tracing::info!(robot = %opts.robot_id, scenario = %opts.scenario, lockstep = opts.lockstep, gateway = %opts.gateway, "sim edge agent starting");
+    drive(opts, &mut robot, hello, desc.limits, shutdown, hooks).await
+}
+
+/// Drives `robot` through the gateway until the run ends: attaches,
+/// reconnects with backoff when the link is lost, and holds the robot
+/// stopped while it is down.
+pub(crate) async fn drive(
+    opts: &EdgeOptions,
+    robot: &mut impl World,
+    hello: pb::EdgeHello,
+    limits: Limits,
+    shutdown: CancellationToken,
+    hooks: Hooks,
+) -> anyhow::Result<()> {
+    let mut gov = Governor::new(limits, opts.deadman_timeout_s);
     let mut backoff =
         Backoff::new(Duration::from_secs_f64(opts.reconnect_initial_s), Duration::from_secs_f64(opts.reconnect_max_s));
     let mut status = StatusReporter::default();
-    tracing::info!(robot = %opts.robot_id, scenario = %opts.scenario, lockstep = opts.lockstep, gateway = %opts.gateway, "sim edge agent starting");
     loop {
         if shutdown.is_cancelled() || robot.time_is_up() {
             return Ok(());
@@ -128,7 +189,7 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
                 tracing::info!(robot = %opts.robot_id, "attached to the gateway");
                 let mut session = Session {
                     opts,
-                    robot: &mut robot,
+                    robot: &mut *robot,
                     gov: &mut gov,
                     link: &mut link,
                     status: &mut status,
@@ -145,7 +206,7 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
                 gov.drop_command();
                 let delay = backoff.next_delay();
                 tracing::warn!(robot = %opts.robot_id, %reason, retry_in_s = delay.as_secs_f64(), "gateway link down; robot held stopped");
-                if hold_stopped(opts, &mut robot, &mut gov, &hooks, delay, &shutdown).await {
+                if hold_stopped(opts, robot, &mut gov, &hooks, delay, &shutdown).await {
                     return Ok(());
                 }
             }
@@ -158,7 +219,7 @@ pub async fn run_sim(opts: &EdgeOptions, shutdown: CancellationToken, hooks: Hoo
 /// Returns true when the run should end.
 async fn hold_stopped(
     opts: &EdgeOptions,
-    robot: &mut SimRobot,
+    robot: &mut impl World,
     gov: &mut Governor,
     hooks: &Hooks,
     delay: Duration,
@@ -171,14 +232,14 @@ async fn hold_stopped(
             _ = tokio::time::sleep_until(until) => return false,
         }
     }
-    let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
+    let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period()));
     loop {
         tokio::select! {
             _ = shutdown.cancelled() => return true,
             _ = tokio::time::sleep_until(until) => return false,
             _ = tick.tick() => {
                 gov.set_estop(hooks.estop.is_engaged());
-                let (out, verdict) = gov.output(robot.sim.time());
+                let (out, verdict) = gov.output(robot.time());
                 robot.step(out);
                 observe(hooks, robot, out, verdict, gov, false, String::new());
                 if robot.time_is_up() { return true; }
@@ -195,7 +256,7 @@ fn timing(hooks: &Hooks, event: LinkEvent) {
 
 fn observe(
     hooks: &Hooks,
-    robot: &SimRobot,
+    robot: &impl World,
     applied: Twist,
     verdict: Verdict,
     gov: &Governor,
@@ -204,10 +265,10 @@ fn observe(
 ) {
     if let Some(obs) = &hooks.observer {
         let _ = obs.send(StepRecord {
-            seq: robot.seq.saturating_sub(1),
-            stamp: robot.sim.time(),
-            odom: robot.sim.odometry().pose,
-            truth: Some(robot.sim.truth()),
+            seq: robot.frames().saturating_sub(1),
+            stamp: robot.time(),
+            odom: robot.odometry(),
+            truth: robot.truth(),
             command: gov.command(),
             applied,
             verdict,
@@ -219,9 +280,9 @@ fn observe(
 
 /// One connection's worth of driving the simulated robot: what a session
 /// reads, and the state it carries over to the next connection.
-struct Session<'a> {
+struct Session<'a, W: World> {
     opts: &'a EdgeOptions,
-    robot: &'a mut SimRobot,
+    robot: &'a mut W,
     gov: &'a mut Governor,
     link: &'a mut Link,
     status: &'a mut StatusReporter,
@@ -229,7 +290,7 @@ struct Session<'a> {
     shutdown: &'a CancellationToken,
 }
 
-impl Session<'_> {
+impl<W: World> Session<'_, W> {
     /// One frame out, one command back, then the next frame.
     async fn lockstep(&mut self) -> SessionEnd {
         let Session { opts, robot, gov, link, status, hooks, shutdown } = self;
@@ -240,8 +301,8 @@ impl Session<'_> {
             if shutdown.is_cancelled() || robot.time_is_up() {
                 return SessionEnd::Finished;
             }
-            let (frame, odo, _, _) = robot.capture();
-            let stamp = robot.sim.time();
+            let (frame, odo) = robot.capture();
+            let stamp = robot.time();
             for msg in [
                 convert::edge(pb::edge_message::Kind::Odometry(odo)),
                 convert::edge(pb::edge_message::Kind::Frame(frame)),
@@ -266,7 +327,7 @@ impl Session<'_> {
                     Err(e) => return SessionEnd::Lost(e),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Velocity(v)) }) => break v,
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => {
-                        robot.sim.reset_odometry()
+                        robot.reset_odometry()
                     }
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Mission(a)) }) => last.announce(&a),
                     Ok(_) => {}
@@ -284,7 +345,7 @@ impl Session<'_> {
             {
                 return SessionEnd::Lost(e);
             }
-            observe(hooks, robot, out, verdict, gov, last.idle, last.mission.clone());
+            observe(hooks, &**robot, out, verdict, gov, last.idle, last.mission.clone());
             // A lockstep world moves only while a mission drives the robot:
             // free, the robot keeps sending frames of a world standing still
             // (its clock too), so a mission starts from the same state
@@ -303,7 +364,7 @@ impl Session<'_> {
                     },
                     _ => tokio::select! {
                         _ = shutdown.cancelled() => return SessionEnd::Finished,
-                        _ = tokio::time::sleep(Duration::from_secs_f64(robot.period)) => {}
+                        _ = tokio::time::sleep(Duration::from_secs_f64(robot.period())) => {}
                     },
                 }
             }
@@ -315,7 +376,7 @@ impl Session<'_> {
         let Session { opts, robot, gov, link, status, hooks, shutdown } = self;
         let (opts, hooks, shutdown) = (*opts, *hooks, *shutdown);
         let liveness = Duration::from_secs_f64(opts.liveness_timeout_s);
-        let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period));
+        let mut tick = tokio::time::interval(Duration::from_secs_f64(robot.period()));
         tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         let mut last = LastCommand::new(gov);
         // The first frame goes out at once; then one per tick, after stepping.
@@ -329,7 +390,7 @@ impl Session<'_> {
                         timing(hooks, LinkEvent::Command { stamp: v.stamp, idle: v.idle, at: std::time::Instant::now() });
                         last.take(gov, v)
                     }
-                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.sim.reset_odometry(),
+                    Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::ResetOdometry(_)) }) => robot.reset_odometry(),
                     Ok(pb::GatewayCommand { kind: Some(pb::gateway_command::Kind::Mission(a)) }) => last.announce(&a),
                     Ok(_) => {}
                 },
@@ -339,18 +400,18 @@ impl Session<'_> {
                     }
                     if !first {
                         gov.set_estop(hooks.estop.is_engaged());
-                        let (out, verdict) = gov.output(robot.sim.time());
-                        if let Some(s) = status.update(robot.sim.time(), verdict) && let Err(e) = link.offer(s) {
+                        let (out, verdict) = gov.output(robot.time());
+                        if let Some(s) = status.update(robot.time(), verdict) && let Err(e) = link.offer(s) {
                             return SessionEnd::Lost(e);
                         }
-                        observe(hooks, robot, out, verdict, gov, last.idle, last.mission.clone());
+                        observe(hooks, &**robot, out, verdict, gov, last.idle, last.mission.clone());
                         robot.step(out);
                     }
                     first = false;
                     if robot.time_is_up() {
                         return SessionEnd::Finished;
                     }
-                    let (frame, odo, _, _) = robot.capture();
+                    let (frame, odo) = robot.capture();
                     let stamp = frame.frame.as_ref().map(|f| f.stamp);
                     let image_bytes = frame.frame.as_ref().map_or(0, convert::image_bytes);
                     let bytes = prost::Message::encoded_len(&frame);

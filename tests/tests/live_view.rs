@@ -4,13 +4,16 @@
 //! mission, and the mission's MCAP recording is read back with the `mcap`
 //! Python library and its protobuf decoder, then replayed through a fresh
 //! stack: the same commands, and a difference once behaviour changes
-//! (docs/observability.md).
+//! (docs/observability.md). Its first frames then drive a second robot that
+//! sends them again, as the fleet benchmark's `--replay` robots do.
 
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use vlnav::replay::{ReplayArgs, replay};
+use vlnav::replay::{ReplayArgs, read_frames, replay};
 use vlnav_e2e::{TestStack, repo_root, tool};
+use vlnav_edge_agent::replay::{Recorded, run_replay};
+use vlnav_edge_agent::{Codecs, ColourCodec, DepthCodec, EdgeOptions, Hooks};
 use vlnav_gateway::config::ExecutorParams;
 use vlnav_proto::v1::{MissionState, SubmitMissionRequest, submit_mission_request::Instruction};
 
@@ -154,4 +157,55 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
     let changed = replay(&args).await.expect("replay with another stopping distance");
     assert!(changed.plan_matches && changed.differing > 0, "a nearer stop must change some commands:\n{changed}");
     assert!(changed.first[0].index > 0, "the first frames drive the same way: {changed}");
+
+    // The recording as the load generator's robot (`vlnav bench fleet
+    // --replay`): its frames sent again in real time, with JPEG colour and
+    // RVL depth, by a robot whose odometry follows the commands, so a MOVE
+    // drives to its end.
+    let frames = read_frames(&file, 20).expect("the recording's first frames");
+    assert_eq!(frames.len(), 20);
+    let codecs = Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 80, depth: DepthCodec::Rvl };
+    let recorded = Recorded::new(frames, codecs).expect("the frames convert");
+    let opts = EdgeOptions {
+        gateway: t.uri(),
+        robot_id: "husky-2".into(),
+        lockstep: false,
+        frame_rate: 10.0,
+        tls: t.security().robot("husky-2").expect("a certificate for the second robot"),
+        ..EdgeOptions::default()
+    };
+    let (tx, mut steps) = tokio::sync::mpsc::unbounded_channel();
+    let stop = vlnav_runtime::CancellationToken::new();
+    let robot = tokio::spawn({
+        let stop = stop.clone();
+        async move { run_replay(&opts, recorded, stop, Hooks { observer: Some(tx), ..Hooks::default() }).await }
+    });
+    t.wait_for_robot("husky-2").await;
+    let submitted = t
+        .missions()
+        .await
+        .submit_mission(SubmitMissionRequest {
+            robot_id: "husky-2".into(),
+            instruction: Some(Instruction::Text("move 1.5 m ahead".into())),
+            dry_run: false,
+        })
+        .await
+        .expect("SubmitMission for the replaying robot")
+        .into_inner();
+    let (_, mission) = t.follow(&submitted.mission_id, Duration::from_secs(120)).await;
+    stop.cancel();
+    robot.await.unwrap().expect("the replaying robot ends cleanly");
+    assert_eq!(mission.state, MissionState::Succeeded as i32, "{}", mission.reason);
+    let mut last = None;
+    while let Ok(step) = steps.try_recv() {
+        assert!(step.truth.is_none(), "a replaying robot knows no ground truth");
+        last = Some(step);
+    }
+    let last = last.expect("the replaying robot reported its steps");
+    assert!(last.seq > 20, "the 20 frames were sent again from the start: seq {}", last.seq);
+    assert!(
+        (last.odom.x - 1.5).abs() < 0.3 && last.odom.y.abs() < 0.1,
+        "the odometry followed the MOVE: {:?}",
+        last.odom
+    );
 }

@@ -22,6 +22,7 @@ use anyhow::Context;
 use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
+use vlnav_edge_agent::replay::Recorded;
 use vlnav_edge_agent::{ColourCodec, DEFAULT_JPEG_QUALITY, DepthCodec, EdgeOptions, Hooks, LinkEvent};
 use vlnav_gateway::auth::{Role, TokenEntry, TokenFile};
 use vlnav_proto::v1::{
@@ -124,6 +125,18 @@ pub struct FleetArgs {
     /// Plaintext and no tokens (and so no per-caller submission limit).
     #[arg(long)]
     pub insecure: bool,
+    /// Robots that send this mission recording's frames again (the gateway
+    /// writes one per mission: `.vlnav/recordings/*.mcap`) instead of
+    /// rendering a world: a robot then costs the machine next to nothing,
+    /// so the run measures the stack. The frame size is the recording's
+    /// (--width and --height are not used); its colour and depth are sent
+    /// with --colour-codec and --depth-codec.
+    #[arg(long)]
+    pub replay: Option<PathBuf>,
+    /// Frames of --replay held in memory and sent in turn (shared by every
+    /// robot; 100 at 640×480 raw hold about 180 MB).
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..))]
+    pub replay_frames: u64,
 }
 
 #[derive(clap::Args, Clone, Debug)]
@@ -149,6 +162,10 @@ pub struct RobotsArgs {
     pub colour_codec: ColourCodec,
     #[arg(long, default_value_t = DEFAULT_JPEG_QUALITY, value_parser = clap::value_parser!(u8).range(1..=100))]
     pub jpeg_quality: u8,
+    #[arg(long)]
+    pub replay: Option<PathBuf>,
+    #[arg(long, default_value_t = 100)]
+    pub replay_frames: u64,
 }
 
 #[derive(clap::Args, Clone, Debug)]
@@ -166,6 +183,14 @@ pub struct PlotArgs {
 /// The robots' side of a run, as the child reports it.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct RobotsSummary {
+    /// What the robots send: `rendered <scenario>` or `replayed <file>, <n> frames`.
+    #[serde(default)]
+    pub load: String,
+    /// The robots' camera size.
+    #[serde(default)]
+    pub width: u32,
+    #[serde(default)]
+    pub height: u32,
     pub seconds: f64,
     pub frames_sent: u64,
     /// Bytes of the frames handed to the links (see [`LinkEvent::Frame`]).
@@ -208,6 +233,10 @@ pub struct FleetReport {
     pub width: u32,
     pub height: u32,
     pub frame_rate: f64,
+    /// What the robots send: `rendered <scenario>` (each robot renders its
+    /// world) or `replayed <file>, <n> frames` (`--replay`).
+    #[serde(default)]
+    pub load: String,
     #[serde(default)]
     pub depth_codec: String,
     /// `raw`, or `jpeg q<quality>`.
@@ -247,6 +276,14 @@ pub struct FleetReport {
     /// Gateway and every stage (one process).
     pub stack_cpu_percent: f64,
     pub stack_rss_mib: f64,
+    /// The stack's CPU time per frame that reached the gateway (sent and not
+    /// dropped at the robot), milliseconds: the gateway and every stage.
+    #[serde(default)]
+    pub stack_cpu_ms_per_frame: f64,
+    /// Robots at `frame_rate` that this machine's cores could serve if the
+    /// stack did nothing but this work: cores ÷ (CPU per frame × frame rate).
+    #[serde(default)]
+    pub compute_bound_robots: f64,
     /// The stack's busiest threads by name, CPU percent (100 = one core): a
     /// stage whose actor thread nears 100 % is the bottleneck.
     #[serde(default)]
@@ -267,8 +304,9 @@ impl std::fmt::Display for FleetReport {
         }
         writeln!(
             f,
-            "{} robots, {}x{} at {} fps ({:.1} achieved), {} colour, {} depth, {} perception, {:.0} s measured{}",
+            "{} robots ({}), {}x{} at {} fps ({:.1} achieved), {} colour, {} depth, {} perception, {:.0} s measured{}",
             self.robots,
+            if self.load.is_empty() { "rendered" } else { &self.load },
             self.width,
             self.height,
             self.frame_rate,
@@ -310,6 +348,13 @@ impl std::fmt::Display for FleetReport {
             "  CPU: stack {:.0} %, robots {:.0} % (100 % = one core); memory: stack {:.0} MiB, robots {:.0} MiB",
             self.stack_cpu_percent, self.robots_cpu_percent, self.stack_rss_mib, self.robots_rss_mib
         )?;
+        if self.stack_cpu_ms_per_frame > 0.0 {
+            write!(
+                f,
+                "\n  stack CPU per frame {:.1} ms: this machine's cores could serve {:.1} robots at {} fps (the compute bound)",
+                self.stack_cpu_ms_per_frame, self.compute_bound_robots, self.frame_rate
+            )?;
+        }
         if !self.stack_threads.is_empty() {
             let threads: Vec<String> = self.stack_threads.iter().map(|(n, p)| format!("{n} {p:.0} %")).collect();
             write!(f, "\n  busiest stack threads: {}", threads.join(", "))?;
@@ -461,6 +506,25 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
         Some(dir) => Some(DevPki::ensure(dir, &[])?),
         None => None,
     };
+    let codecs = vlnav_edge_agent::Codecs {
+        colour: args.colour_codec,
+        jpeg_quality: args.jpeg_quality,
+        depth: args.depth_codec,
+    };
+    let (recorded, load) = match &args.replay {
+        Some(file) => {
+            let frames = crate::replay::read_frames(file, args.replay_frames.try_into().unwrap_or(usize::MAX))?;
+            let recorded = Recorded::new(frames, codecs).with_context(|| format!("replaying {}", file.display()))?;
+            let name = file.file_name().map_or_else(|| file.display().to_string(), |n| n.to_string_lossy().into());
+            let load = format!("replayed {name}, {} frames", recorded.len());
+            (Some(recorded), load)
+        }
+        None => (None, format!("rendered {}", args.scenario)),
+    };
+    let (width, height) = match &recorded {
+        Some(r) => (r.camera().width, r.camera().height),
+        None => (args.width, args.height),
+    };
     let measuring = Arc::new(AtomicBool::new(false));
     let shutdown = CancellationToken::new();
     let period = 1.0 / args.frame_rate;
@@ -487,8 +551,13 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
         let (tx, mut rx) = mpsc::unbounded_channel();
         let hooks = Hooks { timing: Some(tx), ..Hooks::default() };
         let token = shutdown.clone();
+        let recorded = recorded.clone();
         tokio::spawn(async move {
-            if let Err(e) = vlnav_edge_agent::run_with(opts, token, hooks).await {
+            let run = match recorded {
+                Some(r) => vlnav_edge_agent::replay::run_replay(&opts, r, token, hooks).await,
+                None => vlnav_edge_agent::run_with(opts, token, hooks).await,
+            };
+            if let Err(e) = run {
                 eprintln!("robot {id}: {e:#}");
             }
         });
@@ -520,7 +589,7 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
     shutdown.cancel();
     let (t0, cpu0) = started.unwrap_or((Instant::now(), cpu1));
     let seconds = t0.elapsed().as_secs_f64();
-    let mut summary = RobotsSummary { seconds, rss_mib: rss, ..Default::default() };
+    let mut summary = RobotsSummary { load, width, height, seconds, rss_mib: rss, ..Default::default() };
     summary.cpu_percent = if seconds > 0.0 { (cpu1 - cpu0) / seconds * 100.0 } else { 0.0 };
     let mut all = Vec::new();
     for s in &stats {
@@ -709,11 +778,15 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         .args(["--frame-rate", &args.frame_rate.to_string(), "--scenario", &args.scenario])
         .args(["--depth-codec", args.depth_codec.as_str(), "--colour-codec", args.colour_codec.as_str()])
         .args(["--jpeg-quality", &args.jpeg_quality.to_string()])
+        .args(["--replay-frames", &args.replay_frames.to_string()])
         .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
         .kill_on_drop(true);
     if !args.insecure {
         child.arg("--security-dir").arg(&security_dir);
+    }
+    if let Some(file) = &args.replay {
+        child.arg("--replay").arg(file);
     }
     let mut child = child.spawn().context("starting the robots' process")?;
     let mut to_child = child.stdin.take().context("no stdin to the robots' process")?;
@@ -784,15 +857,16 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         measured(
             &robots,
             started,
-            &format!("{n} robots at {}x{} and {} fps", args.width, args.height, args.frame_rate),
+            &format!("{n} robots at {}x{} and {} fps", robots.width, robots.height, args.frame_rate),
         )?;
         Ok(FleetReport {
             robots: n,
             seconds,
             perception: args.perception.as_str().into(),
-            width: args.width,
-            height: args.height,
+            width: robots.width,
+            height: robots.height,
             frame_rate: args.frame_rate,
+            load: robots.load.clone(),
             depth_codec: args.depth_codec.as_str().into(),
             colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
             uplink_mbit_s_per_robot: mbit_s_per_robot(robots.frame_bytes, n, robots.seconds),
@@ -814,6 +888,12 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             missions_failed: counts.failed.load(Ordering::Relaxed) - failed0,
             submissions_refused: counts.refused.load(Ordering::Relaxed) - refused0,
             stack_cpu_percent: (cpu1 - cpu0) / seconds * 100.0,
+            stack_cpu_ms_per_frame: cpu_ms_per_frame(cpu1 - cpu0, robots.frames_sent - robots.dropped_at_edge),
+            compute_bound_robots: compute_bound(
+                cpu_ms_per_frame(cpu1 - cpu0, robots.frames_sent - robots.dropped_at_edge),
+                args.frame_rate,
+                cores(),
+            ),
             stack_rss_mib: rss,
             stack_threads,
             robots_cpu_percent: robots.cpu_percent,
@@ -828,6 +908,22 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
     let _ = child.kill().await;
     stack.shutdown().await?;
     result
+}
+
+/// CPU milliseconds per frame: `cpu_s` seconds over `frames`.
+fn cpu_ms_per_frame(cpu_s: f64, frames: u64) -> f64 {
+    if frames == 0 { 0.0 } else { cpu_s * 1e3 / frames as f64 }
+}
+
+/// Robots at `frame_rate` that `cores` serve at `cpu_ms` CPU milliseconds a
+/// frame, with nothing else to do.
+fn compute_bound(cpu_ms: f64, frame_rate: f64, cores: f64) -> f64 {
+    if cpu_ms <= 0.0 || frame_rate <= 0.0 { 0.0 } else { cores / (cpu_ms * 1e-3 * frame_rate) }
+}
+
+/// Cores this process may run on.
+fn cores() -> f64 {
+    std::thread::available_parallelism().map_or(1.0, |n| n.get() as f64)
 }
 
 /// A run that answered no control cycle while a mission drove a robot has
@@ -1091,6 +1187,15 @@ mod tests {
         assert_eq!(mbit_s_per_robot(1000, 1, 0.0), 0.0);
         assert_eq!(colour_name(ColourCodec::Jpeg, 85), "jpeg q85");
         assert_eq!(colour_name(ColourCodec::Raw, 85), "raw");
+    }
+
+    #[test]
+    fn the_compute_bound_is_cores_over_the_cpu_a_second_of_frames_takes() {
+        // 20 ms of CPU a frame at 10 fps is a fifth of a core per robot.
+        assert_eq!(cpu_ms_per_frame(4.0, 200), 20.0);
+        assert!((compute_bound(20.0, 10.0, 2.0) - 10.0).abs() < 1e-9);
+        assert_eq!(cpu_ms_per_frame(1.0, 0), 0.0, "no frame: no figure");
+        assert_eq!(compute_bound(0.0, 10.0, 2.0), 0.0);
     }
 
     #[test]

@@ -76,9 +76,31 @@ pub fn recording_files(first: &Path) -> Vec<PathBuf> {
 
 /// Reads a recording (and its continuations).
 pub fn read_recording(first: &Path) -> anyhow::Result<Recording> {
+    let rec = read_messages(first, None)?;
+    if rec.frames.len() != rec.commands.len() {
+        anyhow::bail!(
+            "{} holds {} frames but {} commands: frames were dropped from it while it was recorded, so it cannot \
+             be replayed exactly (the gateway's log says how many)",
+            first.display(),
+            rec.frames.len(),
+            rec.commands.len()
+        );
+    }
+    Ok(rec)
+}
+
+/// The first `max` sensor frames of a recording (and its continuations), for
+/// a load generator that sends them again (`vlnav bench fleet --replay`).
+pub fn read_frames(first: &Path, max: usize) -> anyhow::Result<Vec<SensorFrame>> {
+    anyhow::ensure!(max > 0, "at least one frame must be read");
+    Ok(read_messages(first, Some(max))?.frames)
+}
+
+/// A recording's metadata, plan, commands and frames (at most `max_frames`).
+fn read_messages(first: &Path, max_frames: Option<usize>) -> anyhow::Result<Recording> {
     let files = recording_files(first);
     let mut rec = Recording { files: files.clone(), ..Default::default() };
-    for file in &files {
+    'files: for file in &files {
         let bytes = std::fs::read(file).map_err(|e| anyhow::anyhow!("cannot read {}: {e}", file.display()))?;
         let bad = |e: mcap::McapError| anyhow::anyhow!("{} is not a readable MCAP file: {e}", file.display());
         for record in mcap::read::LinearReader::new(&bytes).map_err(bad)? {
@@ -93,6 +115,9 @@ pub fn read_recording(first: &Path) -> anyhow::Result<Recording> {
             let topic = message.channel.topic.as_str();
             let decode = |what: &str| anyhow::anyhow!("{}: a {what} on {topic} does not decode", file.display());
             if topic.ends_with("/sensor_frame") {
+                if max_frames.is_some_and(|m| rec.frames.len() >= m) {
+                    break 'files;
+                }
                 rec.frames.push(SensorFrame::decode(&message.data[..]).map_err(|_| decode("SensorFrame"))?);
             } else if topic.ends_with("/cmd_vel") {
                 rec.commands.push(VelocityCommand::decode(&message.data[..]).map_err(|_| decode("VelocityCommand"))?);
@@ -110,15 +135,6 @@ pub fn read_recording(first: &Path) -> anyhow::Result<Recording> {
     }
     if rec.frames.is_empty() {
         anyhow::bail!("{} holds no sensor frames to replay", first.display());
-    }
-    if rec.frames.len() != rec.commands.len() {
-        anyhow::bail!(
-            "{} holds {} frames but {} commands: frames were dropped from it while it was recorded, so it cannot \
-             be replayed exactly (the gateway's log says how many)",
-            first.display(),
-            rec.frames.len(),
-            rec.commands.len()
-        );
     }
     Ok(rec)
 }
