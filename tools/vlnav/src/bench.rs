@@ -1005,18 +1005,21 @@ fn series_label(runs: &[FleetReport]) -> String {
     let r = &runs[0];
     let colour = if r.colour_codec.is_empty() { "raw" } else { r.colour_codec.as_str() };
     format!(
-        "{} perception, {}x{}, {colour} colour, {} depth{}",
+        "{} perception, {}x{}, {colour} colour, {} depth{}{}",
         r.perception,
         r.width,
         r.height,
         r.depth_codec,
+        if r.load.starts_with("replayed") { ", replayed robots" } else { "" },
         if r.flood.is_some() { ", SubmitMission flood" } else { "" }
     )
 }
 
 fn plot_svg(series: &[Vec<FleetReport>], goal_ms: f64) -> String {
     use std::fmt::Write;
-    let (w, h, left, right, top, bottom) = (720.0, 440.0, 70.0, 20.0, 30.0, 110.0);
+    // Room below the axes for one legend line per series.
+    let bottom = (46.0 + 16.0 * series.len() as f64).max(110.0);
+    let (w, h, left, right, top) = (720.0, 330.0 + bottom, 70.0, 20.0, 30.0);
     let (pw, ph) = (w - left - right, h - top - bottom);
     let all = series.iter().flatten();
     let max_n = all.clone().map(|r| r.robots).max().unwrap_or(1).max(2) as f64;
