@@ -192,10 +192,8 @@ pub async fn run_replay(
     shutdown: CancellationToken,
     hooks: Hooks,
 ) -> anyhow::Result<()> {
+    // `Recorded::new` refuses a recording without frames.
     opts.validate()?;
-    if recorded.is_empty() {
-        anyhow::bail!("no frame to replay");
-    }
     let params = vlnav_sim::HuskyParams::default();
     let desc =
         RobotDescription { limits: limits_of(&params), footprint_length: params.length, footprint_width: params.width };

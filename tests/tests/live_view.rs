@@ -36,6 +36,17 @@ fn node_client(url: &str) -> std::process::Child {
         .expect("node runs (Debian's nodejs, deploy/setup-system.sh)")
 }
 
+/// Submits `text` for `robot`; the mission's id.
+async fn submit(t: &TestStack, robot: &str, text: &str) -> String {
+    let request = SubmitMissionRequest {
+        robot_id: robot.into(),
+        instruction: Some(Instruction::Text(text.into())),
+        dry_run: false,
+    };
+    let submitted = t.missions().await.submit_mission(request).await;
+    submitted.unwrap_or_else(|e| panic!("SubmitMission for {robot}: {e}")).into_inner().mission_id
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_library() {
     let t = TestStack::start(|a| {
@@ -46,18 +57,8 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
     let addr = t.stack.live_view_addr().expect("the live view is on");
     let client = node_client(&format!("ws://{addr}"));
 
-    let submitted = t
-        .missions()
-        .await
-        .submit_mission(SubmitMissionRequest {
-            robot_id: ROBOT.into(),
-            instruction: Some(Instruction::Text("go to the bicycle".into())),
-            dry_run: false,
-        })
-        .await
-        .expect("SubmitMission")
-        .into_inner();
-    let (_, mission) = t.follow(&submitted.mission_id, Duration::from_secs(240)).await;
+    let mission_id = submit(&t, ROBOT, "go to the bicycle").await;
+    let (_, mission) = t.follow(&mission_id, Duration::from_secs(240)).await;
     assert_eq!(mission.state, MissionState::Succeeded as i32, "{}", mission.reason);
 
     // The live view, as a client of the protocol's library saw it.
@@ -81,7 +82,7 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
         assert!(seen["count"].as_u64().unwrap_or(0) >= 5, "{topic} delivered too little: {live}");
     }
     assert!(live["topics"][format!("/{ROBOT}/camera/image")]["bytes"].as_u64().unwrap() > 5 * 5_000, "{live}");
-    assert_eq!(live["status"]["mission_id"], submitted.mission_id.as_str(), "{live}");
+    assert_eq!(live["status"]["mission_id"], mission_id.as_str(), "{live}");
 
     // The recording: named by GetMission, finished, and readable by a third party.
     assert_eq!(mission.recordings.len(), 1, "{:?}", mission.recordings);
@@ -124,7 +125,7 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
     }
     assert_eq!(facts["frames"].as_u64(), Some(frames));
     assert_eq!(facts["frame_seqs_increasing"], true);
-    assert_eq!(facts["command_mission_ids"], serde_json::json!([submitted.mission_id]));
+    assert_eq!(facts["command_mission_ids"], serde_json::json!([mission_id]));
     assert_eq!(facts["jpeg_images"].as_u64(), Some(frames), "every camera image is a JPEG");
     assert!(facts["target_boxes"].as_u64().unwrap() >= 3, "the tracked bicycle is highlighted: {facts}");
     assert!(facts["labels"].as_array().unwrap().iter().any(|l| l == "TARGET bicycle"), "{facts}");
@@ -139,7 +140,7 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
         "recorded {duration:.1} s of a {:.1} s mission",
         metrics.duration_s
     );
-    assert_eq!(facts["metadata"]["vlnav.mission"]["mission_id"], submitted.mission_id.as_str());
+    assert_eq!(facts["metadata"]["vlnav.mission"]["mission_id"], mission_id.as_str());
     let states = facts["states"].as_array().expect("mission states");
     assert_eq!(states.first().and_then(|s| s.as_str()), Some("running"), "{states:?}");
     assert_eq!(states.last().and_then(|s| s.as_str()), Some("succeeded"), "{states:?}");
@@ -181,18 +182,8 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
         async move { run_replay(&opts, recorded, stop, Hooks { observer: Some(tx), ..Hooks::default() }).await }
     });
     t.wait_for_robot("husky-2").await;
-    let submitted = t
-        .missions()
-        .await
-        .submit_mission(SubmitMissionRequest {
-            robot_id: "husky-2".into(),
-            instruction: Some(Instruction::Text("move 1.5 m ahead".into())),
-            dry_run: false,
-        })
-        .await
-        .expect("SubmitMission for the replaying robot")
-        .into_inner();
-    let (_, mission) = t.follow(&submitted.mission_id, Duration::from_secs(120)).await;
+    let mission_id = submit(&t, "husky-2", "move 1.5 m ahead").await;
+    let (_, mission) = t.follow(&mission_id, Duration::from_secs(120)).await;
     stop.cancel();
     robot.await.unwrap().expect("the replaying robot ends cleanly");
     assert_eq!(mission.state, MissionState::Succeeded as i32, "{}", mission.reason);

@@ -854,6 +854,8 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             .with_context(|| format!("the robots' process reported {line:?} (its errors are above)"))?;
         stop.cancel();
         let started = counts.started.load(Ordering::Relaxed) - started0;
+        // Frames that reached the gateway: sent, and not dropped at the robot.
+        let cpu_ms = cpu_ms_per_frame(cpu1 - cpu0, robots.frames_sent - robots.dropped_at_edge);
         measured(
             &robots,
             started,
@@ -888,12 +890,8 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             missions_failed: counts.failed.load(Ordering::Relaxed) - failed0,
             submissions_refused: counts.refused.load(Ordering::Relaxed) - refused0,
             stack_cpu_percent: (cpu1 - cpu0) / seconds * 100.0,
-            stack_cpu_ms_per_frame: cpu_ms_per_frame(cpu1 - cpu0, robots.frames_sent - robots.dropped_at_edge),
-            compute_bound_robots: compute_bound(
-                cpu_ms_per_frame(cpu1 - cpu0, robots.frames_sent - robots.dropped_at_edge),
-                args.frame_rate,
-                cores(),
-            ),
+            stack_cpu_ms_per_frame: cpu_ms,
+            compute_bound_robots: compute_bound(cpu_ms, args.frame_rate, cores()),
             stack_rss_mib: rss,
             stack_threads,
             robots_cpu_percent: robots.cpu_percent,
