@@ -1,8 +1,10 @@
 //! Clients of the stage services. Every call carries the caller's trace
 //! context (the runtime's traced channel), so stage spans join the mission's trace.
 
+use std::sync::{Arc, Mutex, PoisonError};
+
 use vlnav_proto::v1::{
-    detector_service_client::DetectorServiceClient, ingress_service_client::IngressServiceClient,
+    FrameInputs, detector_service_client::DetectorServiceClient, ingress_service_client::IngressServiceClient,
     local_planner_service_client::LocalPlannerServiceClient, planner_service_client::PlannerServiceClient,
     reid_service_client::ReidServiceClient, segmenter_service_client::SegmenterServiceClient,
     subgoal_service_client::SubgoalServiceClient,
@@ -23,6 +25,26 @@ pub(crate) struct Pipeline {
     pub(crate) local_planner: LocalPlannerServiceClient<TracedChannel>,
     /// The deadline of each call the executor makes (`--stage-timeout-s`).
     pub(crate) stage_timeout: std::time::Duration,
+    /// What the detector and the segmenter read of a frame, as they said.
+    pub(crate) detector_inputs: KnownInputs,
+    pub(crate) segmenter_inputs: KnownInputs,
+}
+
+/// The parts of a frame a stage reads (`FrameInputs`), as the stage said
+/// when first asked, shared by every robot's executor; `None` until then.
+/// The gateway sends the stage only those parts (docs/architecture.md,
+/// "Frames").
+#[derive(Clone, Debug, Default)]
+pub(crate) struct KnownInputs(Arc<Mutex<Option<FrameInputs>>>);
+
+impl KnownInputs {
+    pub(crate) fn get(&self) -> Option<FrameInputs> {
+        *self.0.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    pub(crate) fn set(&self, inputs: Option<FrameInputs>) {
+        *self.0.lock().unwrap_or_else(PoisonError::into_inner) = inputs;
+    }
 }
 
 /// Frames are large; allow what a 4096² RGB-D frame needs.
@@ -53,6 +75,8 @@ impl Pipeline {
             subgoal: stage_client!(SubgoalServiceClient, &opts.subgoal_uri, s),
             local_planner: stage_client!(LocalPlannerServiceClient, &opts.local_planner_uri, s),
             stage_timeout: std::time::Duration::from_secs_f64(opts.stage_timeout_s),
+            detector_inputs: KnownInputs::default(),
+            segmenter_inputs: KnownInputs::default(),
         })
     }
 }

@@ -162,11 +162,12 @@ fn entries() -> Vec<Entry> {
             |m, _| {
                 vlnav_detector::grpc::filter_from_request(&m.class_ids, m.min_score, 0.25).or_else(refused)?;
                 let frame = m.frame.unwrap_or_default();
-                vlnav_detector::grpc::labels_input(&frame).or_else(refused)?;
+                vlnav_detector::grpc::labels_input(&frame, true).or_else(refused)?;
                 convert_frame(&frame)
             }
         ),
         entry!(GetModelInfoRequest),
+        entry!(GetSegmenterInfoRequest),
         entry!(
             EdgeMessage,
             |rng| pb::EdgeMessage {

@@ -12,7 +12,7 @@ use vlnav_geometry::convert::{self, goal_to_proto, pose_to_proto};
 use super::machine::{MoveQuery, PlannerReply, Reply, Request, StageFailure};
 use super::model::*;
 use crate::frames::CheckedFrame;
-use crate::pipeline::Pipeline;
+use crate::pipeline::{KnownInputs, Pipeline};
 
 /// A stage's error status as the mission's failure: a call past its
 /// deadline says how long it was waited for.
@@ -73,7 +73,6 @@ impl Stages<'_> {
                 Ok(Reply::StepStarted { goal })
             }
             Request::Perceive { detect } => {
-                let segment = self.segment();
                 // A FIND asks for every class (the machine weighs other
                 // classes' boxes against the target's); otherwise people
                 // only, at the detector's default score, for the local
@@ -82,9 +81,17 @@ impl Stages<'_> {
                     Some((_, min_score)) => (vec![], min_score),
                     None => (vec![PERSON_CLASS], 0.0),
                 };
-                let mut detector = pipeline.detector.clone();
-                let request = pb::DetectRequest { frame: Some(self.frame.clone()), class_ids, min_score };
-                let (detected, no_go) = tokio::join!(detector.detect(self.deadline(request)), segment);
+                let detected = async {
+                    let ask = |inputs: &pb::FrameInputs| {
+                        let frame = Some(frame_with(self.frame, inputs));
+                        let request =
+                            self.deadline(pb::DetectRequest { frame, class_ids: class_ids.clone(), min_score });
+                        let mut detector = pipeline.detector.clone();
+                        async move { detector.detect(request).await }
+                    };
+                    self.with_inputs(&pipeline.detector_inputs, || self.detector_inputs(), ask).await
+                };
+                let (detected, no_go) = tokio::join!(detected, self.segment());
                 let no_go: Vec<Vector3<f64>> = no_go?.iter().map(|p| Vector3::new(p.x, p.y, p.z)).collect();
                 let boxes = match (detected, detect) {
                     (Ok(d), _) => d.into_inner().boxes,
@@ -213,32 +220,106 @@ impl Stages<'_> {
         goal_from_proto(&goal)
     }
 
-    fn segment(&self) -> impl Future<Output = Result<Vec<pb::Point3>, StageFailure>> + use<> {
-        let mut segmenter = self.pipeline.segmenter.clone();
-        let request = self.deadline(pb::SegmentRequest {
-            frame: Some(self.frame.clone()),
-            classes: vec![],
-            return_mask: false,
-            point_stride: 0,
-        });
-        let failed = self.failed("segmenter");
-        async move { Ok(segmenter.segment(request).await.map_err(failed)?.into_inner().virtual_points) }
+    async fn segment(&self) -> Result<Vec<pb::Point3>, StageFailure> {
+        let ask = |inputs: &pb::FrameInputs| {
+            let request = self.deadline(pb::SegmentRequest {
+                frame: Some(frame_with(self.frame, inputs)),
+                classes: vec![],
+                return_mask: false,
+                point_stride: 0,
+            });
+            let mut segmenter = self.pipeline.segmenter.clone();
+            async move { segmenter.segment(request).await }
+        };
+        let segmented = self.with_inputs(&self.pipeline.segmenter_inputs, || self.segmenter_inputs(), ask).await;
+        Ok(segmented.map_err(self.failed("segmenter"))?.into_inner().virtual_points)
+    }
+
+    /// What the detector reads of a frame (asked once, then kept).
+    async fn detector_inputs(&self) -> Result<Option<pb::FrameInputs>, tonic::Status> {
+        let info = self.pipeline.detector.clone().get_model_info(self.deadline(pb::GetModelInfoRequest {})).await?;
+        Ok(info.into_inner().inputs)
+    }
+
+    /// What the segmenter reads of a frame (asked once, then kept).
+    async fn segmenter_inputs(&self) -> Result<Option<pb::FrameInputs>, tonic::Status> {
+        let info =
+            self.pipeline.segmenter.clone().get_segmenter_info(self.deadline(pb::GetSegmenterInfoRequest {})).await?;
+        Ok(info.into_inner().inputs)
+    }
+
+    /// Calls a frame-reading stage with only the parts of the frame it
+    /// reads: `known` holds what it said it reads, `ask_inputs` asks it when
+    /// that is not known yet, `call` makes the call with a frame cut to
+    /// those parts. A stage that cannot say (it is not up, or predates the
+    /// question) gets the whole frame, and is asked again next time unless
+    /// it does not know the question. A stage that refuses a cut frame as
+    /// invalid (its backend changed since it said) gets the whole frame at
+    /// once, and is asked again next time: no frame is lost to it.
+    async fn with_inputs<T, A, C, F>(
+        &self,
+        known: &KnownInputs,
+        ask_inputs: impl FnOnce() -> A,
+        call: C,
+    ) -> Result<tonic::Response<T>, tonic::Status>
+    where
+        A: Future<Output = Result<Option<pb::FrameInputs>, tonic::Status>>,
+        C: Fn(&pb::FrameInputs) -> F,
+        F: Future<Output = Result<tonic::Response<T>, tonic::Status>>,
+    {
+        let inputs = match known.get() {
+            Some(inputs) => inputs,
+            None => match ask_inputs().await {
+                Ok(said) => {
+                    let inputs = said.unwrap_or(ALL_INPUTS);
+                    known.set(Some(inputs));
+                    inputs
+                }
+                Err(s) => {
+                    if s.code() == tonic::Code::Unimplemented {
+                        known.set(Some(ALL_INPUTS));
+                    }
+                    ALL_INPUTS
+                }
+            },
+        };
+        match call(&inputs).await {
+            Err(s) if s.code() == tonic::Code::InvalidArgument && inputs != ALL_INPUTS => {
+                tracing::info!(
+                    robot = self.robot_id,
+                    "a stage refused a frame cut to the inputs it said it reads ({}); sending it whole, and asking again",
+                    s.message()
+                );
+                known.set(None);
+                call(&ALL_INPUTS).await
+            }
+            other => other,
+        }
     }
 }
 
-/// The frame with only what geometry needs (depth, camera, pose).
-fn depth_only(f: &pb::RgbdFrame) -> pb::RgbdFrame {
+/// A frame's every part: what a stage that has not said what it reads gets.
+const ALL_INPUTS: pb::FrameInputs = pb::FrameInputs { rgb: true, depth: true, labels: true };
+
+/// The frame with only `inputs` of its images (camera, stamp and
+/// odometry always): shared buffers, not copies.
+fn frame_with(f: &pb::RgbdFrame, inputs: &pb::FrameInputs) -> pb::RgbdFrame {
     pb::RgbdFrame {
         robot_id: f.robot_id.clone(),
         seq: f.seq,
         stamp: f.stamp,
         camera: f.camera,
-        rgb: None,
-        depth: f.depth.clone(),
+        rgb: if inputs.rgb { f.rgb.clone() } else { None },
+        depth: if inputs.depth { f.depth.clone() } else { None },
         odom: f.odom,
         odom_twist: f.odom_twist,
-        labels: None,
+        labels: if inputs.labels { f.labels.clone() } else { None },
     }
+}
+
+/// The frame with only what geometry needs (depth, camera, pose).
+fn depth_only(f: &pb::RgbdFrame) -> pb::RgbdFrame {
+    frame_with(f, &pb::FrameInputs { rgb: false, depth: true, labels: false })
 }
 
 /// A pose the robot reported (a frame's odometry, a goal the robot was
@@ -497,5 +578,108 @@ mod tests {
         assert_eq!(seen.stamp, f.stamp);
         let camera = convert::camera_from_proto(f.camera.as_ref(), "frame.camera", convert::DepthDefaults::UNSET);
         assert_eq!(seen.camera, Some(camera.unwrap()));
+    }
+
+    use std::sync::Mutex;
+
+    fn pipeline() -> Pipeline {
+        let ports = crate::config::StagePorts {
+            ingress: 1,
+            planner: 1,
+            detector: 1,
+            reid: 1,
+            segmenter: 1,
+            subgoal: 1,
+            local_planner: 1,
+        };
+        Pipeline::connect(&crate::config::GatewayOptions::loopback(&ports, std::env::temp_dir())).unwrap()
+    }
+
+    const COLOUR: pb::FrameInputs = pb::FrameInputs { rgb: true, depth: true, labels: false };
+
+    /// A stage that reads `reads`: it refuses, as invalid, a frame cut to
+    /// less, and records what each call was sent.
+    fn stage<'a>(
+        reads: pb::FrameInputs,
+        sent: &'a Mutex<Vec<pb::FrameInputs>>,
+    ) -> impl Fn(&pb::FrameInputs) -> std::future::Ready<Result<tonic::Response<()>, tonic::Status>> + 'a {
+        move |inputs: &pb::FrameInputs| {
+            sent.lock().unwrap().push(*inputs);
+            let enough =
+                (inputs.rgb || !reads.rgb) && (inputs.depth || !reads.depth) && (inputs.labels || !reads.labels);
+            std::future::ready(if enough {
+                Ok(tonic::Response::new(()))
+            } else {
+                Err(tonic::Status::invalid_argument("frame.rgb is required by this backend"))
+            })
+        }
+    }
+
+    #[test]
+    fn a_frame_cut_to_a_stages_inputs_shares_their_buffers_and_keeps_camera_stamp_and_pose() {
+        let f = crate::frames::tests::frame(8, 6);
+        let cut = frame_with(&f, &pb::FrameInputs { rgb: false, depth: true, labels: false });
+        assert!(cut.rgb.is_none() && cut.labels.is_none());
+        let (depth, whole) = (&cut.depth.as_ref().unwrap().data_mm, &f.depth.as_ref().unwrap().data_mm);
+        assert_eq!(depth.as_ptr(), whole.as_ptr(), "shared, not copied");
+        assert_eq!((cut.camera, cut.stamp, cut.seq, cut.odom), (f.camera, f.stamp, f.seq, f.odom));
+        assert_eq!(frame_with(&f, &ALL_INPUTS), f);
+    }
+
+    #[tokio::test]
+    async fn a_stage_is_asked_once_what_it_reads_and_then_sent_only_that() {
+        let (pipeline, f) = (pipeline(), crate::frames::tests::frame(8, 6));
+        let stages = Stages { pipeline: &pipeline, robot_id: "husky-1", frame: &f, segmented_unanswered: None };
+        let (known, sent, asked) = (KnownInputs::default(), Mutex::new(Vec::new()), Mutex::new(0));
+        for _ in 0..3 {
+            let ask = || async {
+                *asked.lock().unwrap() += 1;
+                Ok(Some(COLOUR))
+            };
+            stages.with_inputs(&known, ask, stage(COLOUR, &sent)).await.unwrap();
+        }
+        assert_eq!(*asked.lock().unwrap(), 1);
+        assert_eq!(*sent.lock().unwrap(), vec![COLOUR; 3]);
+    }
+
+    #[tokio::test]
+    async fn a_stage_that_refuses_a_cut_frame_gets_it_whole_at_once_and_is_asked_again() {
+        let (pipeline, f) = (pipeline(), crate::frames::tests::frame(8, 6));
+        let stages = Stages { pipeline: &pipeline, robot_id: "husky-1", frame: &f, segmented_unanswered: None };
+        // It said labels and depth, then its backend became the colour one.
+        let (known, sent) = (KnownInputs::default(), Mutex::new(Vec::new()));
+        known.set(Some(pb::FrameInputs { rgb: false, depth: true, labels: true }));
+        let never = || async { panic!("not asked while known") };
+        stages.with_inputs(&known, never, stage(COLOUR, &sent)).await.expect("answered: no frame lost");
+        assert_eq!(sent.lock().unwrap().last(), Some(&ALL_INPUTS));
+        assert_eq!(known.get(), None, "asked again next time");
+        // An error that is not about the frame is the stage's answer, not retried.
+        let (known, sent) = (KnownInputs::default(), Mutex::new(Vec::new()));
+        known.set(Some(COLOUR));
+        let down = |_: &pb::FrameInputs| {
+            sent.lock().unwrap().push(COLOUR);
+            std::future::ready(Err::<tonic::Response<()>, _>(tonic::Status::unavailable("down")))
+        };
+        let err = stages.with_inputs(&known, never, down).await.unwrap_err();
+        assert_eq!((err.code(), sent.lock().unwrap().len()), (tonic::Code::Unavailable, 1));
+    }
+
+    #[tokio::test]
+    async fn a_stage_that_cannot_say_gets_whole_frames_and_is_asked_again_unless_it_lacks_the_question() {
+        let (pipeline, f) = (pipeline(), crate::frames::tests::frame(8, 6));
+        let stages = Stages { pipeline: &pipeline, robot_id: "husky-1", frame: &f, segmented_unanswered: None };
+        let sent = Mutex::new(Vec::new());
+        let everything = pb::FrameInputs { rgb: true, depth: true, labels: true };
+        for (answer, kept) in [
+            (Err(tonic::Status::unavailable("starting")), None),
+            (Err(tonic::Status::unimplemented("an older stage")), Some(ALL_INPUTS)),
+            (Ok(None), Some(ALL_INPUTS)),
+        ] {
+            let known = KnownInputs::default();
+            let ask = || std::future::ready(answer);
+            stages.with_inputs(&known, ask, stage(everything, &sent)).await.unwrap();
+            assert_eq!(sent.lock().unwrap().last(), Some(&ALL_INPUTS));
+            assert_eq!(known.get(), kept);
+        }
     }
 }

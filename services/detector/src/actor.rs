@@ -17,7 +17,11 @@ use crate::{BackendKind, Options};
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum InputKind {
     Rgb,
-    Labels,
+    /// The label image, and depth when `depth` (the oracle backend ranges
+    /// its boxes; the realistic one draws from its model without depth).
+    Labels {
+        depth: bool,
+    },
 }
 
 /// Static description of the loaded backend.
@@ -116,13 +120,13 @@ impl Backend {
                 input: InputKind::Rgb,
                 classes: classes.names().to_vec(),
             },
-            Backend::Sim(_) => BackendInfo {
+            Backend::Sim(cfg) => BackendInfo {
                 backend: "sim",
                 model: "label-image simulation".into(),
                 input_width: 0,
                 input_height: 0,
                 device: "cpu".into(),
-                input: InputKind::Labels,
+                input: InputKind::Labels { depth: cfg.model.is_none() },
                 classes: coco_names(),
             },
         }

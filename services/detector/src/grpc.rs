@@ -92,13 +92,13 @@ async fn rgb_input(frame: &v1::RgbdFrame) -> Result<Input, ServiceError> {
     Ok(Input::Rgb(decode_off_thread(encoded_image_from_proto(rgb)?).await?))
 }
 
-/// Parses `frame.labels` and the aligned `frame.depth`.
-pub fn labels_input(frame: &v1::RgbdFrame) -> Result<Input, ServiceError> {
+/// Parses `frame.labels` and, `with_depth`, the aligned `frame.depth`.
+pub fn labels_input(frame: &v1::RgbdFrame, with_depth: bool) -> Result<Input, ServiceError> {
     let labels = frame.labels.as_ref().filter(|l| l.width > 0 && l.height > 0).ok_or(LabelError::Missing)?;
     let (width, height) = (labels.width, labels.height);
     let instance_ids = sim::parse_u16_image("instance_ids", width, height, &labels.instance_ids)?;
     let depth_mm = match &frame.depth {
-        Some(d) if !d.data_mm.is_empty() => {
+        Some(d) if with_depth && !d.data_mm.is_empty() => {
             if (d.width, d.height) != (width, height) {
                 return Err(LabelError::DepthSize { dw: d.width, dh: d.height, width, height }.into());
             }
@@ -138,7 +138,7 @@ impl DetectorGrpc {
         let filter = filter_from_request(&req.class_ids, req.min_score, self.default_min_score)?;
         let input = match self.info.input {
             InputKind::Rgb => rgb_input(frame).await?,
-            InputKind::Labels => labels_input(frame)?,
+            InputKind::Labels { depth } => labels_input(frame, depth)?,
         };
         let dets = self.mailbox.call(|reply| Msg::Detect { job: Job { input, filter }, reply }).await??;
         Ok(v1::DetectResponse { boxes: dets.iter().map(to_proto).collect(), backend: self.info.backend.to_string() })
@@ -159,6 +159,10 @@ impl DetectorService for DetectorGrpc {
             input_height: self.info.input_height,
             classes: self.info.classes.clone(),
             device: self.info.device.clone(),
+            inputs: Some(match self.info.input {
+                InputKind::Rgb => v1::FrameInputs { rgb: true, depth: false, labels: false },
+                InputKind::Labels { depth } => v1::FrameInputs { rgb: false, depth, labels: true },
+            }),
         }))
     }
 }

@@ -162,32 +162,50 @@ pub fn detect(frame: &LabeledFrame, cfg: &SimConfig, filter: &DetectFilter) -> V
 }
 
 /// Visible extent (and depths) of every instance in `classes`.
+///
+/// Instance ids are u16, so a dense table of 65,536 slots tells which ids
+/// are wanted and where each one's extent is: hashing every pixel's id
+/// took most of this stage's time at 640 × 480 (docs/reliability.md,
+/// "Robots on one gateway").
 fn extents_of(frame: &LabeledFrame, classes: &HashMap<u32, i32>, with_depth: bool) -> HashMap<u32, Extent> {
+    const NONE: u32 = u32::MAX;
     let has_depth = with_depth && !frame.depth_mm.is_empty();
-    let mut extents: HashMap<u32, Extent> = HashMap::new();
     let w = frame.width as usize;
-    for (i, &id) in frame.instance_ids.iter().enumerate() {
-        if id == 0 || !classes.contains_key(&(id as u32)) {
-            continue;
-        }
-        let (x, y) = ((i % w) as u32, (i / w) as u32);
-        let e = extents.entry(id as u32).or_insert_with(|| Extent {
-            x_min: x,
-            y_min: y,
-            x_max: x,
-            y_max: y,
-            ..Default::default()
-        });
-        e.x_min = e.x_min.min(x);
-        e.x_max = e.x_max.max(x);
-        e.y_min = e.y_min.min(y);
-        e.y_max = e.y_max.max(y);
-        e.pixels += 1;
-        if has_depth && frame.depth_mm[i] > 0 {
-            e.depths.push(frame.depth_mm[i]);
+    if w == 0 {
+        return HashMap::new();
+    }
+    let mut slot = vec![NONE; 1 << 16];
+    for &id in classes.keys().filter(|&&id| id != 0 && id < 1 << 16) {
+        slot[id as usize] = NONE - 1;
+    }
+    let mut found: Vec<(u32, Extent)> = Vec::new();
+    for (y, row) in frame.instance_ids.chunks(w).enumerate() {
+        let y = y as u32;
+        for (x, &id) in row.iter().enumerate() {
+            let s = slot[id as usize];
+            if s == NONE {
+                continue;
+            }
+            let x = x as u32;
+            let e = if s == NONE - 1 {
+                slot[id as usize] = found.len() as u32;
+                found.push((id as u32, Extent { x_min: x, y_min: y, x_max: x, y_max: y, ..Default::default() }));
+                &mut found.last_mut().expect("just pushed").1
+            } else {
+                &mut found[s as usize].1
+            };
+            e.x_min = e.x_min.min(x);
+            e.x_max = e.x_max.max(x);
+            e.y_min = e.y_min.min(y);
+            e.y_max = e.y_max.max(y);
+            e.pixels += 1;
+            let i = y as usize * w + x as usize;
+            if has_depth && frame.depth_mm[i] > 0 {
+                e.depths.push(frame.depth_mm[i]);
+            }
         }
     }
-    extents
+    found.into_iter().collect()
 }
 
 /// The realistic detector: misses, confusions, jitter, confidences and

@@ -58,6 +58,8 @@ async fn simulation_backend_reads_label_images() {
     let mut svc = start(sim_options()).await;
     let info = svc.client.get_model_info(v1::GetModelInfoRequest {}).await.unwrap().into_inner();
     assert_eq!(info.backend, "sim");
+    // The oracle ranges its boxes by depth; the realistic model reads labels alone.
+    assert_eq!(info.inputs, Some(v1::FrameInputs { rgb: false, depth: true, labels: true }));
     let resp = svc.client.detect(request(labelled_frame(1), vec![], 0.0)).await.unwrap().into_inner();
     assert_eq!(resp.backend, "sim");
     assert_eq!(resp.boxes.len(), 1, "{:?}", resp.boxes);
@@ -84,6 +86,20 @@ async fn simulation_backend_reads_label_images() {
     frame.depth.as_mut().unwrap().width = 8;
     let e = svc.client.detect(request(frame, vec![], 0.0)).await.unwrap_err();
     assert!(e.code() == Code::InvalidArgument && e.message().contains("frame.depth"), "{}", e.message());
+    svc.stop().await.unwrap();
+}
+
+#[tokio::test]
+async fn the_realistic_simulation_reads_the_label_image_alone_and_answers_a_frame_cut_to_it() {
+    let mut svc = start(Options { backend: BackendKind::Sim, sim_profile: "nanodet".into(), ..sim_options() }).await;
+    let info = svc.client.get_model_info(v1::GetModelInfoRequest {}).await.unwrap().into_inner();
+    assert_eq!(info.inputs, Some(v1::FrameInputs { rgb: false, depth: false, labels: true }));
+    for seq in 0..20 {
+        let whole = svc.client.detect(request(labelled_frame(seq), vec![], 0.0)).await.unwrap().into_inner();
+        let cut = v1::RgbdFrame { depth: None, ..labelled_frame(seq) };
+        let answer = svc.client.detect(request(cut, vec![], 0.0)).await.unwrap().into_inner();
+        assert_eq!(answer.boxes, whole.boxes, "seq {seq}");
+    }
     svc.stop().await.unwrap();
 }
 
@@ -140,6 +156,7 @@ async fn yolov8_serves_generated_weights() {
         start(Options { backend: BackendKind::Yolov8, yolo_weights: Some(weights), ..Default::default() }).await;
     let info = svc.client.get_model_info(v1::GetModelInfoRequest {}).await.unwrap().into_inner();
     assert_eq!((info.backend.as_str(), info.model.as_str(), info.input_width), ("yolov8", "yolov8n", 640));
+    assert_eq!(info.inputs, Some(v1::FrameInputs { rgb: true, depth: false, labels: false }));
     // Random weights detect nonsense, but every box is well formed, filtered and inside the image.
     let img = vec![128u8; 64 * 48 * 3];
     let frame = rgb_frame(image(v1::ImageEncoding::Rgb8, 64, 48, img));

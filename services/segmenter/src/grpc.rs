@@ -7,11 +7,14 @@ use vlnav_geometry::convert::{
     DepthDefaults, InvalidField, camera_from_proto, depth_from_proto, encoded_image_from_proto, label_ids_from_proto,
 };
 use vlnav_geometry::rgb::decode_off_thread;
-use vlnav_proto::v1::{self, Point3, SegmentRequest, SegmentResponse, segmenter_service_server::SegmenterService};
+use vlnav_proto::v1::{
+    self, GetSegmenterInfoRequest, Point3, SegmentRequest, SegmentResponse, SegmenterInfo,
+    segmenter_service_server::SegmenterService,
+};
 use vlnav_runtime::actor::{ActorGone, Mailbox};
 
 use crate::actor::{Msg, SegmentJob};
-use crate::segment::{SegmentError, SemanticLabels};
+use crate::segment::{Reads, SegmentError, SemanticLabels};
 
 /// Largest accepted point stride.
 const MAX_STRIDE: u32 = 1024;
@@ -38,14 +41,22 @@ impl From<ServiceError> for Status {
     }
 }
 
+/// What the service says about its backend.
+#[derive(Clone, Debug)]
+pub struct BackendInfo {
+    pub name: &'static str,
+    pub classes: Vec<String>,
+    pub reads: Reads,
+}
+
 pub struct SegmenterGrpc {
     actor: Mailbox<Msg>,
-    backend: &'static str,
+    info: BackendInfo,
 }
 
 impl SegmenterGrpc {
-    pub fn new(actor: Mailbox<Msg>, backend: &'static str) -> Self {
-        Self { actor, backend }
+    pub fn new(actor: Mailbox<Msg>, info: BackendInfo) -> Self {
+        Self { actor, info }
     }
 }
 
@@ -81,11 +92,13 @@ impl SegmenterGrpc {
                 InvalidField::new("point_stride", format!("at most {MAX_STRIDE}, got {}", req.point_stride)).into()
             );
         }
+        // Only what the backend reads is decoded (and required).
+        let reads = self.info.reads;
         let job = SegmentJob {
             camera,
-            rgb: rgb(frame, &camera).await?,
+            rgb: if reads.rgb { rgb(frame, &camera).await? } else { Vec::new() },
             depth_mm: depth_from_proto(frame.depth.as_ref(), &camera, "frame.depth")?.to_mm(),
-            semantics: semantics(frame, &camera)?,
+            semantics: if reads.labels { semantics(frame, &camera)? } else { None },
             classes: if req.classes.is_empty() { None } else { Some(req.classes.clone()) },
             point_stride: req.point_stride as usize,
         };
@@ -97,7 +110,7 @@ impl SegmenterGrpc {
             classes: seg.classes,
             virtual_points: seg.points.into_iter().map(|[x, y, z]| Point3 { x, y, z }).collect(),
             class_pixels: seg.class_pixels,
-            backend: self.backend.to_string(),
+            backend: self.info.name.to_string(),
         })
     }
 }
@@ -106,5 +119,14 @@ impl SegmenterGrpc {
 impl SegmenterService for SegmenterGrpc {
     async fn segment(&self, req: Request<SegmentRequest>) -> Result<Response<SegmentResponse>, Status> {
         Ok(Response::new(self.segment_inner(req.into_inner()).await?))
+    }
+
+    async fn get_segmenter_info(&self, _: Request<GetSegmenterInfoRequest>) -> Result<Response<SegmenterInfo>, Status> {
+        let reads = self.info.reads;
+        Ok(Response::new(SegmenterInfo {
+            backend: self.info.name.to_string(),
+            classes: self.info.classes.clone(),
+            inputs: Some(v1::FrameInputs { rgb: reads.rgb, depth: true, labels: reads.labels }),
+        }))
     }
 }

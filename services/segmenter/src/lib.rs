@@ -122,6 +122,7 @@ pub async fn services(
     );
     anyhow::ensure!(opts.point_stride >= 1, "--segmenter-point-stride must be at least 1");
     let name = backend.name();
+    let info = grpc::BackendInfo { name, classes: backend.classes(), reads: backend.reads() };
     tracing::info!(backend = name, classes = ?backend.classes(), "segmenter ready");
     let settings = PointSettings {
         floor_z_m: opts.floor_z_m,
@@ -129,7 +130,7 @@ pub async fn services(
         layers_m: opts.layers_m.clone(),
     };
     let actor = SegmenterActor::new(backend, settings, opts.point_stride).spawn();
-    let svc = SegmenterServiceServer::new(grpc::SegmenterGrpc::new(actor, name))
+    let svc = SegmenterServiceServer::new(grpc::SegmenterGrpc::new(actor, info))
         .max_decoding_message_size(server.max_message_bytes)
         .max_encoding_message_size(server.max_message_bytes);
     Ok(vlnav_runtime::ServiceSet::new().add("segment", svc).callers(vlnav_runtime::CallerPolicy::stages()))

@@ -8,7 +8,7 @@ use std::collections::HashMap;
 
 use vlnav_geometry::camera::{Camera, Projector};
 
-use crate::colour::{ColourClass, rgb_to_hsv};
+use crate::colour::{ColourClass, Labeller, rgb_to_hsv};
 
 /// One RGB-D frame in domain terms (sizes already checked against `camera`).
 pub struct FrameView<'a> {
@@ -46,6 +46,17 @@ pub trait SegmentBackend: Send {
     /// Per pixel: 1 + index into `classes()` of the first wanted class that
     /// matches, 0 for none. `wanted[i]` says whether class `i` was asked for.
     fn label(&self, frame: &FrameView, wanted: &[bool]) -> Result<Vec<u8>, SegmentError>;
+    /// What the backend reads from a frame besides depth, which every
+    /// backend reads (the floor check and the points).
+    fn reads(&self) -> Reads;
+}
+
+/// The parts of a frame a backend reads besides depth.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Reads {
+    pub rgb: bool,
+    /// The simulator's label image.
+    pub labels: bool,
 }
 
 /// Thresholds colour in HSV.
@@ -72,17 +83,23 @@ impl SegmentBackend for ColourBackend {
         self.classes[i].floor_only
     }
 
+    fn reads(&self) -> Reads {
+        Reads { rgb: true, labels: false }
+    }
+
     fn label(&self, frame: &FrameView, wanted: &[bool]) -> Result<Vec<u8>, SegmentError> {
         let active: Vec<(u8, &ColourClass)> =
             self.classes.iter().enumerate().filter(|(i, _)| wanted[*i]).map(|(i, c)| (i as u8 + 1, c)).collect();
-        Ok(frame
-            .rgb
-            .chunks_exact(3)
-            .map(|p| {
-                let hsv = rgb_to_hsv([p[0], p[1], p[2]]);
-                active.iter().find(|(_, c)| c.ranges.iter().any(|r| r.contains(hsv))).map_or(0, |(k, _)| *k)
-            })
-            .collect())
+        let pixels = frame.rgb.chunks_exact(3);
+        Ok(match Labeller::new(&active) {
+            Some(labeller) => pixels.map(|p| labeller.label([p[0], p[1], p[2]])).collect(),
+            None => pixels
+                .map(|p| {
+                    let hsv = rgb_to_hsv([p[0], p[1], p[2]]);
+                    active.iter().find(|(_, c)| c.ranges.iter().any(|r| r.contains(hsv))).map_or(0, |(k, _)| *k)
+                })
+                .collect(),
+        })
     }
 }
 
@@ -103,6 +120,10 @@ impl SegmentBackend for SimBackend {
 
     fn floor_only(&self, _i: usize) -> bool {
         true
+    }
+
+    fn reads(&self) -> Reads {
+        Reads { rgb: false, labels: true }
     }
 
     fn label(&self, frame: &FrameView, wanted: &[bool]) -> Result<Vec<u8>, SegmentError> {

@@ -8,7 +8,10 @@ use tonic::Code;
 use vlnav_geometry::camera::{Camera, Intrinsics, Mount};
 use vlnav_geometry::convert::camera_to_proto;
 use vlnav_proto::v1::segmenter_service_client::SegmenterServiceClient;
-use vlnav_proto::v1::{DepthImage, Image, ImageEncoding, LabelImage, LabelInstance, Point3, RgbdFrame, SegmentRequest};
+use vlnav_proto::v1::{
+    DepthImage, FrameInputs, GetSegmenterInfoRequest, Image, ImageEncoding, LabelImage, LabelInstance, Point3,
+    RgbdFrame, SegmentRequest,
+};
 use vlnav_runtime::ServerConfig;
 use vlnav_runtime::testing::{self, Connected};
 
@@ -352,6 +355,17 @@ async fn the_simulation_backend_reads_semantics_from_the_label_image() {
     assert_eq!(r.class_pixels[0] as usize, zone_px);
     assert!(!r.virtual_points.is_empty());
     assert!(r.virtual_points.iter().all(|p| p.x > ZONE.0[0] - 0.05 && p.x < ZONE.0[1] + 0.05));
+    // It says it reads labels and depth, and a frame cut to them gives the same answer.
+    let info = client.get_segmenter_info(GetSegmenterInfoRequest {}).await.unwrap().into_inner();
+    assert_eq!(info.backend, "sim");
+    assert_eq!(info.inputs, Some(FrameInputs { rgb: false, depth: true, labels: true }));
+    let cut = RgbdFrame { rgb: None, ..f.clone() };
+    let same = client
+        .segment(SegmentRequest { frame: Some(cut), classes: vec![], return_mask: true, point_stride: 3 })
+        .await
+        .unwrap()
+        .into_inner();
+    assert_eq!((same.mask, same.virtual_points), (r.mask, r.virtual_points));
     f.labels = None;
     let err = client
         .segment(SegmentRequest { frame: Some(f), classes: vec![], return_mask: false, point_stride: 0 })
