@@ -137,6 +137,42 @@ pub struct FleetArgs {
     /// robot; 100 at 640×480 raw hold about 180 MB).
     #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..))]
     pub replay_frames: u64,
+    /// When in each frame period the robots' cameras fire: `random`, each
+    /// at its own phase (drawn from the robot's number), as the free-running
+    /// cameras of separate robots do; `aligned`, all at the same moment, as
+    /// robots started together do (the worst case).
+    #[arg(long, value_enum, default_value_t = Phases::Random)]
+    pub phases: Phases,
+}
+
+/// When in each frame period the robots of a benchmark send their frames.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phases {
+    Random,
+    Aligned,
+}
+
+impl Phases {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Phases::Random => "random",
+            Phases::Aligned => "aligned",
+        }
+    }
+
+    /// How long robot `i` waits before its first frame, as a share of the
+    /// frame period: uniform in [0, 1) from `i` (SplitMix64), or 0.
+    fn delay_share(self, i: usize) -> f64 {
+        match self {
+            Phases::Aligned => 0.0,
+            Phases::Random => {
+                let mut z = (i as u64).wrapping_add(1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+                (z ^ (z >> 31)) as f64 / 2f64.powi(64)
+            }
+        }
+    }
 }
 
 #[derive(clap::Args, Clone, Debug)]
@@ -166,6 +202,8 @@ pub struct RobotsArgs {
     pub replay: Option<PathBuf>,
     #[arg(long, default_value_t = 100)]
     pub replay_frames: u64,
+    #[arg(long, value_enum, default_value_t = Phases::Aligned)]
+    pub phases: Phases,
 }
 
 #[derive(clap::Args, Clone, Debug)]
@@ -237,6 +275,10 @@ pub struct FleetReport {
     /// world) or `replayed <file>, <n> frames` (`--replay`).
     #[serde(default)]
     pub load: String,
+    /// `random` or `aligned` (`--phases`); empty in reports from before
+    /// the option, whose robots were aligned.
+    #[serde(default)]
+    pub phases: String,
     #[serde(default)]
     pub depth_codec: String,
     /// `raw`, or `jpeg q<quality>`.
@@ -304,9 +346,10 @@ impl std::fmt::Display for FleetReport {
         }
         writeln!(
             f,
-            "{} robots ({}), {}x{} at {} fps ({:.1} achieved), {} colour, {} depth, {} perception, {:.0} s measured{}",
+            "{} robots ({}{}), {}x{} at {} fps ({:.1} achieved), {} colour, {} depth, {} perception, {:.0} s measured{}",
             self.robots,
             if self.load.is_empty() { "rendered" } else { &self.load },
+            if self.phases.is_empty() { String::new() } else { format!(", {} phases", self.phases) },
             self.width,
             self.height,
             self.frame_rate,
@@ -552,7 +595,9 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
         let hooks = Hooks { timing: Some(tx), ..Hooks::default() };
         let token = shutdown.clone();
         let recorded = recorded.clone();
+        let delay = Duration::from_secs_f64(period * args.phases.delay_share(i));
         tokio::spawn(async move {
+            tokio::time::sleep(delay).await;
             let run = match recorded {
                 Some(r) => vlnav_edge_agent::replay::run_replay(&opts, r, token, hooks).await,
                 None => vlnav_edge_agent::run_with(opts, token, hooks).await,
@@ -779,6 +824,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         .args(["--depth-codec", args.depth_codec.as_str(), "--colour-codec", args.colour_codec.as_str()])
         .args(["--jpeg-quality", &args.jpeg_quality.to_string()])
         .args(["--replay-frames", &args.replay_frames.to_string()])
+        .args(["--phases", args.phases.as_str()])
         .stdin(std::process::Stdio::piped())
         .stdout(std::process::Stdio::piped())
         .kill_on_drop(true);
@@ -869,6 +915,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             height: robots.height,
             frame_rate: args.frame_rate,
             load: robots.load.clone(),
+            phases: args.phases.as_str().into(),
             depth_codec: args.depth_codec.as_str().into(),
             colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
             uplink_mbit_s_per_robot: mbit_s_per_robot(robots.frame_bytes, n, robots.seconds),
@@ -954,6 +1001,7 @@ pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::R
                 width: args.width,
                 height: args.height,
                 frame_rate: args.frame_rate,
+                phases: args.phases.as_str().into(),
                 depth_codec: args.depth_codec.as_str().into(),
                 colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
                 error: Some(format!("{e:#}")),
@@ -1003,12 +1051,13 @@ fn series_label(runs: &[FleetReport]) -> String {
     let r = &runs[0];
     let colour = if r.colour_codec.is_empty() { "raw" } else { r.colour_codec.as_str() };
     format!(
-        "{} perception, {}x{}, {colour} colour, {} depth{}{}",
+        "{} perception, {}x{}, {colour} colour, {} depth{}{}{}",
         r.perception,
         r.width,
         r.height,
         r.depth_codec,
         if r.load.starts_with("replayed") { ", replayed robots" } else { "" },
+        if r.phases == "random" { ", random phases" } else { "" },
         if r.flood.is_some() { ", SubmitMission flood" } else { "" }
     )
 }
@@ -1247,5 +1296,18 @@ mod tests {
         assert!(svg.contains("goal: p99 ≤ 50 ms"));
         assert_eq!(svg.matches("<circle").count(), 5);
         assert!(!svg.contains("NaN") && !svg.contains("inf"));
+    }
+
+    #[test]
+    fn random_phases_spread_the_robots_over_the_period_and_aligned_ones_do_not() {
+        let shares: Vec<f64> = (0..1000).map(|i| Phases::Random.delay_share(i)).collect();
+        assert!(shares.iter().all(|s| (0.0..1.0).contains(s)));
+        // Each tenth of the period holds about a tenth of the robots.
+        for k in 0..10 {
+            let n = shares.iter().filter(|s| (k as f64 / 10.0..(k + 1) as f64 / 10.0).contains(*s)).count();
+            assert!((70..=130).contains(&n), "tenth {k}: {n} robots");
+        }
+        assert_eq!(Phases::Random.delay_share(3), Phases::Random.delay_share(3), "the same robot, the same phase");
+        assert!((0..10).all(|i| Phases::Aligned.delay_share(i) == 0.0));
     }
 }
