@@ -166,10 +166,8 @@ impl Phases {
         match self {
             Phases::Aligned => 0.0,
             Phases::Random => {
-                let mut z = (i as u64).wrapping_add(1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-                (z ^ (z >> 31)) as f64 / 2f64.powi(64)
+                let z = vlnav_runtime::perception::splitmix((i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+                z as f64 / 2f64.powi(64)
             }
         }
     }
