@@ -1,7 +1,9 @@
 //! One mission is one distributed trace: spans from the gateway, planner,
 //! detector, subgoal estimator and local planner, exported over OTLP to a
 //! receiver built on the official opentelemetry-proto definitions, with
-//! correct parent links.
+//! correct parent links: every stage's server span under the caller's
+//! client span for that call (`call <Method>`), which the profile's hop
+//! figures rest on.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -9,7 +11,7 @@ use std::time::Duration;
 
 use vlnav_e2e::TestStack;
 use vlnav_proto::v1::{MissionState, SubmitMissionRequest, submit_mission_request::Instruction};
-use vlnav_traces::{Span, SpanStore, serve_receiver};
+use vlnav_traces::{Span, SpanKind, SpanStore, serve_receiver};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
@@ -50,7 +52,13 @@ async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     let by_id: HashMap<&str, &Span> = spans.iter().map(|s| (s.span_id.as_str(), s)).collect();
-    let parent_name = |s: &Span| s.parent_id.as_deref().and_then(|p| by_id.get(p)).map(|p| p.name.as_str());
+    let parent = |s: &Span| s.parent_id.as_deref().and_then(|p| by_id.get(p)).copied();
+    // A server span's caller: the span its client span was opened in.
+    let parent_name = |s: &Span| {
+        let p = parent(s)?;
+        let p = if p.kind == SpanKind::Client { parent(p)? } else { p };
+        Some(p.name.as_str())
+    };
     fn named<'a>(spans: &'a [Span], n: &'a str) -> impl Iterator<Item = &'a Span> + 'a {
         spans.iter().filter(move |s| s.name == n)
     }
@@ -77,6 +85,20 @@ async fn one_mission_is_one_trace_with_every_stage_and_correct_parents() {
     }
     // MOVE goals are computed at step start, FIND goals in the cycle.
     assert!(named(&spans, "subgoal").all(|s| matches!(parent_name(s), Some("control-cycle" | "step"))));
+    // Each stage's server span is the child of a client span of the same
+    // call, opened by the caller (the hop: client span less server span).
+    for stage in ["plan", "detect", "segment", "subgoal", "local-plan"] {
+        for span in named(&spans, stage) {
+            let call = parent(span).unwrap_or_else(|| panic!("`{stage}` span {} has no parent", span.span_id));
+            let method = match span.attributes.get("rpc.method") {
+                Some(vlnav_traces::AttrValue::Str(m)) => m.as_str(),
+                _ => panic!("`{stage}` span without rpc.method"),
+            };
+            assert_eq!(call.kind, SpanKind::Client, "`{stage}` span's parent is `{}`, not a client span", call.name);
+            assert_eq!(call.name, format!("call {method}"));
+            assert!(call.start_ns <= span.start_ns && span.end_ns <= call.end_ns, "the call holds its server span");
+        }
+    }
     // Services report who they are.
     let services: Vec<&str> = spans
         .iter()

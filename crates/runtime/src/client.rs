@@ -1,67 +1,108 @@
 //! Client channels that carry the caller's trace context (W3C `traceparent`)
-//! in gRPC metadata, so one mission is one trace across every hop.
+//! in gRPC metadata, so one mission is one trace across every hop, and that
+//! open a client span around every call: the client span less the server's
+//! span under it is what the hop itself costs — waiting for the connection,
+//! encoding, TLS, the network and the reply's way back (docs/architecture.md,
+//! "Where a control cycle's time goes").
 
 use std::collections::HashSet;
 use std::future::Future;
 use std::net::SocketAddr;
+use std::pin::Pin;
+use std::task::{Context, Poll};
 use std::time::Duration;
 
 use opentelemetry::propagation::Injector;
-use tonic::service::Interceptor;
-use tonic::service::interceptor::InterceptedService;
+use tonic::body::Body;
 use tonic::transport::channel::Change;
 use tonic::transport::{Channel, Endpoint};
+use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
 use crate::security::{ClientSecurity, ClientTls};
 pub use crate::transport::{CONNECTION_WINDOW, STREAM_WINDOW};
 use crate::transport::{KEEPALIVE_INTERVAL, KEEPALIVE_TIMEOUT};
 
-/// Injects the current span's context into outgoing request metadata, and
+/// Injects the current span's context into outgoing request headers, and
 /// the caller's bearer token when it has one (docs/security.md).
 #[derive(Clone, Debug, Default)]
 pub struct InjectTraceContext {
-    bearer: Option<tonic::metadata::MetadataValue<tonic::metadata::Ascii>>,
+    bearer: Option<http::HeaderValue>,
 }
 
 impl InjectTraceContext {
     /// Also sends `authorization: Bearer <token>`.
     pub fn with_bearer(token: &str) -> Result<Self, AddressError> {
-        let value = format!("Bearer {token}")
-            .parse()
+        let value = http::HeaderValue::from_str(&format!("Bearer {token}"))
             .map_err(|_| AddressError("the bearer token holds characters a header cannot carry".into()))?;
         Ok(Self { bearer: Some(value) })
     }
+
+    /// Writes the current span's context (and the bearer token) into
+    /// outgoing request headers.
+    fn inject_headers(&self, headers: &mut http::HeaderMap) {
+        let cx = tracing::Span::current().context();
+        opentelemetry::global::get_text_map_propagator(|p| p.inject_context(&cx, &mut HeaderInjector(headers)));
+        if let Some(b) = &self.bearer {
+            headers.insert(http::header::AUTHORIZATION, b.clone());
+        }
+    }
 }
 
-struct MetadataInjector<'a>(&'a mut tonic::metadata::MetadataMap);
+struct HeaderInjector<'a>(&'a mut http::HeaderMap);
 
-impl Injector for MetadataInjector<'_> {
+impl Injector for HeaderInjector<'_> {
     fn set(&mut self, key: &str, value: String) {
-        if let (Ok(k), Ok(v)) = (
-            tonic::metadata::MetadataKey::from_bytes(key.as_bytes()),
-            tonic::metadata::MetadataValue::try_from(value.as_str()),
-        ) {
+        if let (Ok(k), Ok(v)) =
+            (http::header::HeaderName::from_bytes(key.as_bytes()), http::header::HeaderValue::from_str(&value))
+        {
             self.0.insert(k, v);
         }
     }
 }
 
-impl Interceptor for InjectTraceContext {
-    fn call(&mut self, mut request: tonic::Request<()>) -> Result<tonic::Request<()>, tonic::Status> {
-        let cx = tracing::Span::current().context();
-        opentelemetry::global::get_text_map_propagator(|p| {
-            p.inject_context(&cx, &mut MetadataInjector(request.metadata_mut()))
-        });
-        if let Some(b) = &self.bearer {
-            request.metadata_mut().insert("authorization", b.clone());
-        }
-        Ok(request)
+/// A channel whose every call is a client span (`call <Method>`, kind
+/// client) and carries that span's trace context, so the server's span is
+/// its child.
+#[derive(Clone, Debug)]
+pub struct TracedChannel {
+    inner: Channel,
+    inject: InjectTraceContext,
+}
+
+impl TracedChannel {
+    pub fn new(inner: Channel, inject: InjectTraceContext) -> Self {
+        Self { inner, inject }
     }
 }
 
-/// A channel whose every request carries the caller's trace context.
-pub type TracedChannel = InterceptedService<Channel, InjectTraceContext>;
+impl tower::Service<http::Request<Body>> for TracedChannel {
+    type Response = http::Response<Body>;
+    type Error = tonic::transport::Error;
+    type Future = Pin<Box<dyn Future<Output = Result<Self::Response, Self::Error>> + Send>>;
+
+    fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, mut req: http::Request<Body>) -> Self::Future {
+        let path = req.uri().path();
+        let (service, method) = path.trim_start_matches('/').split_once('/').unwrap_or((path, ""));
+        let span = tracing::info_span!(
+            "call",
+            otel.name = %format_args!("call {method}"),
+            otel.kind = "client",
+            rpc.system = "grpc",
+            rpc.service = %service,
+            rpc.method = %method,
+        );
+        span.in_scope(|| self.inject.inject_headers(req.headers_mut()));
+        // Clone-and-swap keeps the channel that was polled ready for this call.
+        let clone = self.inner.clone();
+        let mut inner = std::mem::replace(&mut self.inner, clone);
+        Box::pin(async move { inner.call(req).await }.instrument(span))
+    }
+}
 
 /// How often a `dns:///` address is resolved again.
 pub const DNS_REFRESH: Duration = Duration::from_secs(10);
@@ -149,7 +190,7 @@ pub fn channel_with(uri: &str, security: &ClientSecurity) -> Result<TracedChanne
         Some(token) => InjectTraceContext::with_bearer(token)?,
         None => InjectTraceContext::default(),
     };
-    Ok(InterceptedService::new(ch, interceptor))
+    Ok(TracedChannel::new(ch, interceptor))
 }
 
 fn host_port(target: &str) -> Option<(&str, u16)> {

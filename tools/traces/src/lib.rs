@@ -18,7 +18,7 @@ pub mod span;
 pub mod store;
 
 pub use cli::{DEFAULT_SPANS_DIR, ProfileArgs, SpanSource, run_profile};
-pub use profile::{CONTROL_CYCLE, ControlLoopProfile, Profile, StageStats, profile};
+pub use profile::{CONTROL_CYCLE, ControlLoopProfile, Profile, StageStats, control_loop_of, profile};
 pub use receiver::{OtlpReceiver, serve_receiver, serve_receiver_with};
 pub use span::{AttrValue, Span, SpanKind, SpanStatus};
 pub use store::{SpanStore, StoreError};

@@ -235,8 +235,14 @@ pub struct ControlLoopProfile {
 /// Breaks down every span named `cycle_name` along its critical path.
 /// `None` when the trace has no such span.
 pub fn control_loop(spans: &[Span], cycle_name: &str) -> Option<ControlLoopProfile> {
+    control_loop_of(spans, cycle_name, |_| true)
+}
+
+/// [`control_loop`] over the cycles `keep` accepts (those of a measured
+/// interval, say), from spans of any number of traces.
+pub fn control_loop_of(spans: &[Span], cycle_name: &str, keep: impl Fn(&Span) -> bool) -> Option<ControlLoopProfile> {
     let tree = SpanTree::new(spans);
-    let mut cycles: Vec<&Span> = spans.iter().filter(|s| s.name == cycle_name).collect();
+    let mut cycles: Vec<&Span> = spans.iter().filter(|s| s.name == cycle_name && keep(s)).collect();
     if cycles.is_empty() {
         return None;
     }
@@ -461,6 +467,34 @@ mod tests {
         assert_eq!(percentile(&[7.0], 0.99), 7.0);
         assert!(percentile(&[], 0.5).is_nan());
         assert_eq!(percentile(&[1.0, 2.0, 3.0, 4.0], 0.5), 2.0);
+    }
+
+    #[test]
+    fn a_call_s_client_span_less_its_server_span_is_the_hop_and_only_kept_cycles_count() {
+        let kind = |mut s: Span, k: SpanKind| {
+            s.kind = k;
+            s
+        };
+        // Two cycles; in each, the gateway calls the detector: the client
+        // span holds 1 ms before and 2 ms after the server's 6 ms.
+        let mut spans = Vec::new();
+        for (c, t0) in [(1_u64, 0_u64), (10, 100)] {
+            spans.push(sp(c, None, CONTROL_CYCLE, "gw", t0, t0 + 12));
+            spans.push(kind(sp(c + 1, Some(c), "call Detect", "gw", t0 + 1, t0 + 10), SpanKind::Client));
+            spans.push(kind(sp(c + 2, Some(c + 1), "detect", "det", t0 + 2, t0 + 8), SpanKind::Server));
+        }
+        let all = control_loop_of(&spans, CONTROL_CYCLE, |_| true).unwrap();
+        assert_eq!(all.cycles, 2);
+        let mean = |cl: &ControlLoopProfile, name: &str| {
+            cl.shares.iter().find(|p| p.stage.name == name).map(|p| p.mean_ms).unwrap()
+        };
+        assert_eq!(mean(&all, "detect"), 6.0);
+        assert_eq!(mean(&all, "call Detect"), 3.0, "the hop");
+        assert_eq!(mean(&all, CONTROL_CYCLE), 3.0, "the gateway's own");
+        // Only the cycles of a measured interval.
+        let later = control_loop_of(&spans, CONTROL_CYCLE, |s| s.start_ns >= 50 * MS).unwrap();
+        assert_eq!(later.cycles, 1);
+        assert!(control_loop_of(&spans, CONTROL_CYCLE, |_| false).is_none());
     }
 
     #[test]

@@ -13,7 +13,7 @@
 //! memory are read from `/proc` for each process.
 
 use std::collections::VecDeque;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -143,6 +143,15 @@ pub struct FleetArgs {
     /// robots started together do (the worst case).
     #[arg(long, value_enum, default_value_t = Phases::Random)]
     pub phases: Phases,
+    /// Also trace every control cycle, with a trace receiver of this
+    /// process writing to this directory, and report where the measured
+    /// cycles' time goes along their critical path: the gateway's own work,
+    /// each stage's (its server span) and each hop's (a call's client span
+    /// less its server span: waiting for the connection, encoding, TLS and
+    /// the network). Tracing costs CPU of its own, so a traced run's
+    /// latency is not an untraced one's.
+    #[arg(long)]
+    pub traces: Option<PathBuf>,
 }
 
 /// When in each frame period the robots of a benchmark send their frames.
@@ -335,6 +344,65 @@ pub struct FleetReport {
     /// Why the run could not be measured (a sweep goes on to the next count).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// With `--traces`: the control cycles of the measured interval found
+    /// in the traces.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub traced_cycles: usize,
+    /// With `--traces`: where those cycles' time goes, the largest share
+    /// first (`tools/traces/src/profile.rs`, critical path).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub critical_path: Vec<PathPart>,
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
+}
+
+/// One span name's time on the control cycles' critical path.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PathPart {
+    /// The span: `control-cycle` (the gateway's own work), a stage's server
+    /// span (`detect`, …), a call's client span (`call Detect`, …: the hop).
+    pub name: String,
+    /// `internal`, `server` or `client`.
+    pub kind: String,
+    /// Mean per cycle (over all cycles), ms.
+    pub mean_ms: f64,
+    /// p95 over the cycles it is on the path in, ms.
+    pub p95_ms: f64,
+    /// Share of all cycle time.
+    pub share: f64,
+}
+
+/// The control cycles that started and ended within `[from_ns, to_ns]`
+/// (Unix time) in the span files of `dir`: how many, and their critical
+/// path's parts.
+fn traced_path(dir: &Path, from_ns: u64, to_ns: u64) -> anyhow::Result<(usize, Vec<PathPart>)> {
+    let store = vlnav_traces::SpanStore::open(dir)?;
+    let mut spans = Vec::new();
+    for id in store.trace_ids()? {
+        spans.extend(store.spans_of_trace(&id)?);
+    }
+    let within = |s: &vlnav_traces::Span| s.start_ns >= from_ns && s.end_ns <= to_ns;
+    let Some(cl) = vlnav_traces::control_loop_of(&spans, vlnav_traces::CONTROL_CYCLE, within) else {
+        return Ok((0, Vec::new()));
+    };
+    let parts = cl
+        .shares
+        .iter()
+        .map(|p| PathPart {
+            name: p.stage.name.clone(),
+            kind: p.stage.kind.as_str().to_string(),
+            mean_ms: p.mean_ms,
+            p95_ms: p.p95_ms,
+            share: p.share,
+        })
+        .collect();
+    Ok((cl.cycles, parts))
+}
+
+fn unix_ns() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos() as u64)
 }
 
 impl std::fmt::Display for FleetReport {
@@ -399,6 +467,22 @@ impl std::fmt::Display for FleetReport {
         if !self.stack_threads.is_empty() {
             let threads: Vec<String> = self.stack_threads.iter().map(|(n, p)| format!("{n} {p:.0} %")).collect();
             write!(f, "\n  busiest stack threads: {}", threads.join(", "))?;
+        }
+        if !self.critical_path.is_empty() {
+            let parts: Vec<String> = self
+                .critical_path
+                .iter()
+                .map(|p| {
+                    let own = if p.name == vlnav_traces::CONTROL_CYCLE { " (gateway's own)" } else { "" };
+                    format!("{}{own} [{}] {:.2} ms ({:.0} %)", p.name, p.kind, p.mean_ms, 100.0 * p.share)
+                })
+                .collect();
+            write!(
+                f,
+                "\n  where a traced cycle's time goes ({} cycles, mean per cycle on the critical path): {}",
+                self.traced_cycles,
+                parts.join(", ")
+            )?;
         }
         if let Some(fl) = &self.flood {
             write!(
@@ -836,6 +920,8 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
     let mut to_child = child.stdin.take().context("no stdin to the robots' process")?;
     let from_child = child.stdout.take().context("no stdout from the robots' process")?;
 
+    // The measured interval in Unix time (for --traces).
+    let mut window = (0_u64, 0_u64);
     let result = async {
         // Every robot attached and sending.
         let mut fleet = FleetServiceClient::new(channel_with(&uri, &stack.operator()?)?);
@@ -871,6 +957,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         let (cpu0, _) = proc_usage(me)?;
         let threads0 = thread_usage(me);
         let t0 = Instant::now();
+        window.0 = unix_ns();
         to_child.write_all(b"start\n").await?;
         let flooding = if args.flood {
             let stop = stop.child_token();
@@ -881,6 +968,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         };
         tokio::time::sleep(Duration::from_secs_f64(args.seconds)).await;
         to_child.write_all(b"stop\n").await?;
+        window.1 = unix_ns();
         let seconds = t0.elapsed().as_secs_f64();
         let (cpu1, rss) = proc_usage(me)?;
         let stack_threads = busiest(&threads0, &thread_usage(me), seconds, 6);
@@ -943,6 +1031,8 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             robots_rss_mib: robots.rss_mib,
             flood,
             error: None,
+            traced_cycles: 0,
+            critical_path: Vec::new(),
         })
     }
     .await;
@@ -950,7 +1040,18 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
     let _ = tokio::time::timeout(Duration::from_secs(10), child.wait()).await;
     let _ = child.kill().await;
     stack.shutdown().await?;
-    result
+    let mut report = result?;
+    if let Some(dir) = &args.traces {
+        // Spans leave in batches every 200 ms (crates/runtime/src/telemetry.rs).
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        (report.traced_cycles, report.critical_path) = traced_path(dir, window.0, window.1)?;
+        anyhow::ensure!(
+            report.traced_cycles > 0,
+            "--traces: no control cycle of the measured interval reached {}",
+            dir.display()
+        );
+    }
+    Ok(report)
 }
 
 /// CPU milliseconds per frame: `cpu_s` seconds over `frames`.

@@ -109,9 +109,22 @@ async fn trace_receiver(args: &UpArgs, token: &CancellationToken) -> anyhow::Res
         }
         (format!("https://{}", listener.local_addr()?), pki.server_args().load(false)?)
     };
-    // SAFETY: as above.
-    unsafe { std::env::set_var("OTEL_EXPORTER_OTLP_ENDPOINT", &endpoint) };
-    let store = std::sync::Arc::new(vlnav_traces::SpanStore::open(data_dir.join("traces"))?);
+    serve_spans(listener, &endpoint, &data_dir.join("traces"), tls, token)
+}
+
+/// Serves OTLP on `listener` into a span store at `dir` until `token` is
+/// cancelled, and points this process's exporter at `endpoint`, the
+/// listener's address. Call before telemetry is initialised.
+fn serve_spans(
+    listener: TcpListener,
+    endpoint: &str,
+    dir: &std::path::Path,
+    tls: Option<vlnav_runtime::tls::ServerTls>,
+    token: &CancellationToken,
+) -> anyhow::Result<()> {
+    // SAFETY: set before any other thread reads the environment (telemetry is not yet initialised).
+    unsafe { std::env::set_var("OTEL_EXPORTER_OTLP_ENDPOINT", endpoint) };
+    let store = std::sync::Arc::new(vlnav_traces::SpanStore::open(dir)?);
     let token = token.clone();
     tokio::spawn(async move {
         if let Err(e) = vlnav_traces::serve_receiver_with(listener, store, tls, token).await {
@@ -119,6 +132,20 @@ async fn trace_receiver(args: &UpArgs, token: &CancellationToken) -> anyhow::Res
         }
     });
     Ok(())
+}
+
+/// The trace receiver of `vlnav bench fleet --traces DIR`: plaintext on
+/// loopback, in this process, writing to `dir`; this process's exporter
+/// points at it.
+async fn bench_trace_receiver(dir: &std::path::Path, token: &CancellationToken) -> anyhow::Result<()> {
+    if let Some(endpoint) = telemetry::otlp_endpoint() {
+        anyhow::bail!(
+            "--traces runs its own trace receiver, but OTEL_EXPORTER_OTLP_ENDPOINT is set ({endpoint}): unset it, or drop --traces and profile with your collector"
+        );
+    }
+    let listener = TcpListener::bind(SocketAddr::from(([127, 0, 0, 1], 0))).await?;
+    let endpoint = format!("http://{}", listener.local_addr()?);
+    serve_spans(listener, &endpoint, dir, None, token)
 }
 
 #[tokio::main]
@@ -279,8 +306,16 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         Cmd::Bench(vlnav::bench::BenchCmd::Fleet(args)) => {
-            let _telemetry = telemetry::init("vlnav")?;
-            vlnav::bench::fleet(&args, &mut std::io::stdout()).await.map(|_| ())
+            let receiver = CancellationToken::new();
+            if let Some(dir) = &args.traces {
+                bench_trace_receiver(dir, &receiver).await?;
+            }
+            let telemetry = telemetry::init("vlnav")?;
+            let result = vlnav::bench::fleet(&args, &mut std::io::stdout()).await.map(|_| ());
+            // Exporters flush on drop: before their receiver goes away.
+            drop(telemetry);
+            receiver.cancel();
+            result
         }
         Cmd::Bench(vlnav::bench::BenchCmd::Plot(args)) => vlnav::bench::plot(&args),
         Cmd::Bench(vlnav::bench::BenchCmd::Jpeg(args)) => {
