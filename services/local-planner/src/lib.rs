@@ -98,6 +98,13 @@ pub struct Options {
     /// improves the generated development set beyond its interval.
     #[arg(long = "local-planner-detour", env = "VLNAV_LOCAL_PLANNER_DETOUR")]
     pub detour: bool,
+    /// A step that is stuck with nobody near plans the next 2.5 m through
+    /// narrow passages: doors down to about 0.85 m, slowly, with 10.5 MB
+    /// more lookup tables (docs/design.md §4, "Narrow passages"). Off by
+    /// default: it improves the generated development set, but touched
+    /// door jambs in worlds it was not developed on.
+    #[arg(long = "local-planner-narrow", env = "VLNAV_LOCAL_PLANNER_NARROW")]
+    pub narrow: bool,
 }
 
 impl Default for Options {
@@ -124,6 +131,7 @@ impl Default for Options {
             depth_max_m: 10.0,
             progress_window_s: 5.0,
             detour: false,
+            narrow: false,
         }
     }
 }
@@ -179,6 +187,7 @@ impl Options {
                 turn: self.w_turn,
             },
             look_ahead_m: self.look_ahead_m,
+            narrow_clearance_m: if self.narrow { planner::NARROW_CLEARANCE_M } else { 0.0 },
             ..PlannerParams::default()
         }
     }
@@ -193,6 +202,7 @@ impl Options {
             yaw_decel: self.yaw_decel,
             progress_window_s: self.progress_window_s,
             detour: self.detour,
+            narrow: self.narrow,
             ..FollowParams::default()
         }
     }

@@ -61,11 +61,20 @@ impl Default for CostWeights {
     }
 }
 
+/// The narrow-passage tables' clearance, m: the Husky's half width
+/// (0.335 m), the footprint guard's margin (0.05 m) and 0.035 m for where a
+/// remembered cell really is (`control/narrow.rs`).
+pub const NARROW_CLEARANCE_M: f64 = 0.42;
+
 /// Planner settings (CMU's launch values unless noted).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PlannerParams {
     /// Metric clearance of the robot's centre line, m.
     pub clearance_m: f64,
+    /// The clearance of the narrow-passage tables (`Planner::narrow`;
+    /// [`NARROW_CLEARANCE_M`] where `--local-planner-narrow` asks for them),
+    /// m; 0 or not below `clearance_m`: none.
+    pub narrow_clearance_m: f64,
     /// Library rotations, rad (authors: 9 within the camera's ±40°).
     pub rotations: Vec<f64>,
     pub default_scale: f64,
@@ -90,6 +99,7 @@ impl Default for PlannerParams {
     fn default() -> Self {
         Self {
             clearance_m: 0.45,
+            narrow_clearance_m: 0.0,
             rotations: (-4..=4).map(|i| (10.0 * i as f64).to_radians()).collect(),
             default_scale: 1.25,
             min_scale: 0.75,
@@ -174,6 +184,9 @@ pub struct Planner {
     levels: Vec<Level>,
     rot_cs: Vec<(f64, f64)>,
     field: FieldGeometry,
+    /// The same paths with the narrow-passage clearance
+    /// (`PlannerParams::narrow_clearance_m`), if any.
+    narrow: Option<Box<Planner>>,
 }
 
 /// The square distance-transform grid centred on the robot.
@@ -234,7 +247,22 @@ impl Planner {
                 Level { scale, table, cost_cells, cost_samples }
             })
             .collect();
-        Self { library, params, levels, rot_cs, field }
+        let narrow = (params.narrow_clearance_m > 0.0 && params.narrow_clearance_m < params.clearance_m).then(|| {
+            Box::new(Planner::new(PlannerParams {
+                clearance_m: params.narrow_clearance_m,
+                narrow_clearance_m: 0.0,
+                ..params.clone()
+            }))
+        });
+        Self { library, params, levels, rot_cs, field, narrow }
+    }
+
+    /// The planner for narrow passages: the same paths, cost and scales
+    /// with the centre line kept only `narrow_clearance_m` from obstacles
+    /// (a door a little wider than the robot plus its guard margin); this
+    /// planner itself where there is none.
+    pub fn narrow(&self) -> &Planner {
+        self.narrow.as_deref().unwrap_or(self)
     }
 
     /// The scale levels, largest first.

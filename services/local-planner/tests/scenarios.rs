@@ -101,6 +101,10 @@ fn drive(world: &World, start: Pose2, goal: GoalSpec, steps: usize) -> Run {
 }
 
 fn drive_with(params: FollowParams, world: &World, start: Pose2, goal: GoalSpec, steps: usize) -> Run {
+    drive_on(planner(), params, world, start, goal, steps)
+}
+
+fn drive_on(planner: &Planner, params: FollowParams, world: &World, start: Pose2, goal: GoalSpec, steps: usize) -> Run {
     let mut builder = CloudBuilder::new(CloudParams::default());
     let mut state = RobotState::default();
     let mut pose = start;
@@ -108,7 +112,7 @@ fn drive_with(params: FollowParams, world: &World, start: Pose2, goal: GoalSpec,
     for i in 0..steps {
         let cloud = world.sense(&pose, &mut builder);
         let out = state.step(
-            planner(),
+            planner,
             &params,
             StepInput { stamp: 1000.0 + i as f64 * DT, pose, goal, cloud: &cloud, max_speed: 0.0, view: VIEW },
         );
@@ -643,4 +647,35 @@ fn a_person_in_the_doorway_is_waited_for_and_a_post_there_blocks() {
     // waits for them; a post in the same place is furniture: BLOCKED.
     assert!(person[3..].iter().all(|s| *s == StepStatus::Waiting), "{person:?}");
     assert!(post.iter().all(|s| *s == StepStatus::Blocked), "{post:?}");
+}
+
+#[test]
+fn a_door_a_little_wider_than_the_robot_is_driven_through_with_narrow_passages_on() {
+    // A wall across the way 2 m ahead with a door 0.88 m clear, its middle
+    // 0.05 m left: the usual paths keep the centre line 0.45 m from the
+    // jambs, which leaves no line through it.
+    let mut world = World::default();
+    world.add_box(2.0, -3.0, 2.1, -0.39, 1.0);
+    world.add_box(2.0, 0.49, 2.1, 3.0, 1.0);
+    let goal = goal_at(5.0, 0.05, 0.3);
+    let passed = |run: &Run| run.poses.iter().any(|p| p.x > 3.0);
+    let off = drive(&world, Pose2::new(0.0, 0.0, 0.0), goal, 300);
+    assert!(!passed(&off), "through the door without narrow passages");
+    assert!(off.outputs.iter().any(|o| o.status == StepStatus::NoProgress || o.status == StepStatus::Blocked));
+    // With them (`--local-planner-narrow`): stuck once, then through, with
+    // the centre line never nearer a jamb than the half width.
+    static NARROW: OnceLock<Planner> = OnceLock::new();
+    let narrow = NARROW.get_or_init(|| {
+        Planner::new(PlannerParams {
+            narrow_clearance_m: vlnav_local_planner::planner::NARROW_CLEARANCE_M,
+            ..PlannerParams::default()
+        })
+    });
+    let params = FollowParams { narrow: true, ..FollowParams::default() };
+    let on = drive_on(narrow, params, &world, Pose2::new(0.0, 0.0, 0.0), goal, 600);
+    assert_eq!(on.outputs.last().map(|o| o.status), Some(StepStatus::Reached), "{:?}", on.poses.last());
+    for p in &on.poses {
+        let jamb = distance_to_rect(p, 2.0, -3.0, 2.1, -0.39).min(distance_to_rect(p, 2.0, 0.49, 2.1, 3.0));
+        assert!(jamb > 0.335, "the centre {jamb:.3} m from a jamb at {p:?}");
+    }
 }

@@ -57,6 +57,12 @@ impl RobotState {
         } else {
             speed
         };
+        // Stuck once on this goal: through narrow passages, slowly
+        // (`narrow.rs`); the paths still look as far as at the speed
+        // otherwise allowed.
+        let narrow = self.narrow(input, p);
+        let (planner, cruise) =
+            if narrow { (planner.narrow(), speed.min(super::narrow::NARROW_MPS)) } else { (planner, speed) };
         // The course held: where last frame's path crosses the look-ahead circle now.
         let course = self
             .last_path_odom
@@ -75,14 +81,19 @@ impl RobotState {
         };
         let look = look_point(&sel, p);
         let dir = look.y.atan2(look.x);
-        out.angular = clamp_turn(p.yaw_gain * dir, dir, p, dt);
+        let turn = clamp_turn(p.yaw_gain * dir, dir, p, dt);
+        out.angular = self.rear_turn(turn, narrow, p);
+        // The rear still alongside a jamb (`narrow.rs`): straight on, slowly, until it is past.
+        let rear_held = out.angular == 0.0 && turn != 0.0;
         // Aim at the middle of the arrival band: one frame's travel never
         // carries the robot past the goal. (On a detour, with the goal well
         // off the heading, the distance to it is what is left.)
         let left = if bearing.abs() < std::f64::consts::FRAC_PI_4 { goal_base.x } else { distance };
         let ahead = (left - p.arrive_m / 2.0).max(0.0);
-        let target = (speed * (distance / p.slow_down_distance).min(1.0)).max(p.creep_speed).min(ahead / dt);
-        let v = if dir.abs() < p.align_threshold {
+        let target = (cruise * (distance / p.slow_down_distance).min(1.0)).max(p.creep_speed).min(ahead / dt);
+        let v = if rear_held {
+            p.escape_speed.min(target)
+        } else if dir.abs() < p.align_threshold {
             (self.last_speed + p.max_accel * dt).min(target)
         } else {
             (self.last_speed - p.max_accel * dt).max(0.0).min(target)

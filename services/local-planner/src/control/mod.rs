@@ -18,6 +18,7 @@
 //! | `behind.rs` | walkers who alone turn the paths far off are followed, not gone round |
 //! | `walkers.rs` | no command closes on a walking person; a way blocked near a person is WAITING |
 //! | `giveway.rs` | a robot that waited for a person backs away along its own trail |
+//! | `narrow.rs` | a stuck step plans through narrow passages, slowly (`--local-planner-narrow`, off by default) |
 //! | `detour.rs` | a way beyond the paths' reach, searched on a rolling grid when stuck |
 //! | `progress.rs` | the no-progress watchdog |
 //! | `params.rs`, `view.rs` | the settings and the camera's view |
@@ -39,6 +40,7 @@ mod giveway;
 mod goal;
 mod guard;
 mod memory;
+mod narrow;
 mod params;
 mod progress;
 mod rotate;
@@ -145,6 +147,9 @@ pub struct RobotState {
     give_way: GiveWay,
     /// A manoeuvre out of a wedge under way (`backout.rs`).
     back_out: Option<BackOut>,
+    /// Where (`odom`) this goal began planning through a narrow passage
+    /// (`narrow.rs`).
+    narrow_from: Option<Vector2<f64>>,
 }
 
 impl RobotState {
@@ -225,6 +230,9 @@ impl RobotState {
             (out.distance_to_goal, out.heading_error) = (left, aim_bearing);
         }
         let stuck = matches!(out.status, StepStatus::Blocked | StepStatus::NoProgress);
+        if stuck {
+            self.stuck_at(&input, p);
+        }
         // A waypoint reached (as close as the body fits) is no goal reached.
         let waypoint_reached = along.is_some() && out.status == StepStatus::Reached;
         if (stuck || waypoint_reached) && self.plan_detour(&input, &goal_at, p) && (along.is_none() || !stuck) {
@@ -275,6 +283,7 @@ impl RobotState {
             self.last_goal = Some(input.goal);
             self.detour = None;
             self.back_out = None;
+            self.narrow_from = None;
             self.progress = None;
             self.rotating = false;
             self.aligned = false;

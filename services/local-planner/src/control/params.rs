@@ -83,6 +83,10 @@ pub struct FollowParams {
     /// Plan detours on the rolling grid when the direct way makes no
     /// progress (`detour.rs`).
     pub detour: bool,
+    /// A stuck step plans through narrow passages with the planner's
+    /// narrow tables (`narrow.rs`; the planner needs them:
+    /// `PlannerParams::narrow_clearance_m`).
+    pub narrow: bool,
 }
 
 impl FollowParams {
@@ -135,6 +139,7 @@ impl Default for FollowParams {
             goal_shift_max_m: 0.4,
             goal_orbit_max_rad: std::f64::consts::FRAC_PI_2,
             detour: false,
+            narrow: false,
         }
     }
 }

@@ -20,6 +20,7 @@ use nalgebra::Vector2;
 
 use super::creep::{CREEP_CURVATURES, CREEP_HOLD_S};
 use super::guard::arc_pose;
+use super::narrow::NARROW_SWEEP_M;
 use super::{FollowParams, RobotState, StepInput};
 use crate::cloud::Cell;
 
@@ -52,8 +53,9 @@ impl RobotState {
         goal: Option<&Vector2<f64>>,
         dt: f64,
     ) -> Option<Sweep> {
-        // A remembered cell carries the odometry's drift since it was seen.
-        let r_mem = p.sweep_radius_m + p.memory_drift_m;
+        // A remembered cell carries the odometry's drift since it was seen;
+        // passing through a narrow passage, more (`narrow.rs`).
+        let r_mem = p.sweep_radius_m + p.memory_drift_m + if self.narrow(input, p) { NARROW_SWEEP_M } else { 0.0 };
         // A person gets a wider berth than furniture: their place (the
         // tracker's) counts `PeopleParams::radius_m` nearer, since people
         // sway and step while the corners swing.

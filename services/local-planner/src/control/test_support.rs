@@ -61,3 +61,14 @@ pub(super) fn planner() -> &'static Planner {
     static P: OnceLock<Planner> = OnceLock::new();
     P.get_or_init(|| Planner::new(PlannerParams::default()))
 }
+
+/// The default planner with the narrow-passage tables (`narrow.rs`).
+pub(super) fn narrow_planner() -> &'static Planner {
+    static P: OnceLock<Planner> = OnceLock::new();
+    P.get_or_init(|| {
+        Planner::new(PlannerParams {
+            narrow_clearance_m: crate::planner::NARROW_CLEARANCE_M,
+            ..PlannerParams::default()
+        })
+    })
+}
