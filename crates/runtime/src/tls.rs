@@ -11,6 +11,9 @@
 //!   against the revocation list ([`crate::revocation`]); a revoked one is
 //!   refused with the TLS alert `certificate_revoked`.
 //! - Handshakes run off the accept loop, each within [`HANDSHAKE_TIMEOUT`].
+//! - Both ends read their TCP socket through [`BufferedTcp`]: rustls asks
+//!   its transport for 4 KiB at a time, so a 640×480 RGB-D frame (1.5 MB)
+//!   would take some 370 reads from the socket, each a system call.
 
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, RwLock};
@@ -363,7 +366,7 @@ impl ServerTls {
         self,
         listener: TcpListener,
         shutdown: CancellationToken,
-    ) -> impl futures::Stream<Item = std::io::Result<tokio_rustls::server::TlsStream<TcpStream>>> + Send + 'static {
+    ) -> impl futures::Stream<Item = std::io::Result<ServerStream>> + Send + 'static {
         let Self { config, certificate, mut revocation, .. } = self;
         let acceptor = tokio_rustls::TlsAcceptor::from(config);
         let (tx, rx) = mpsc::channel(64);
@@ -404,7 +407,7 @@ impl ServerTls {
                 let _ = tcp.set_nodelay(true);
                 let (acceptor, tx) = (acceptor.clone(), tx.clone());
                 tokio::spawn(async move {
-                    match tokio::time::timeout(HANDSHAKE_TIMEOUT, acceptor.accept(tcp)).await {
+                    match tokio::time::timeout(HANDSHAKE_TIMEOUT, acceptor.accept(BufferedTcp::new(tcp))).await {
                         Ok(Ok(tls)) => {
                             let _ = tx.send(Ok(tls)).await;
                         }
@@ -457,7 +460,7 @@ impl ClientConnector {
 
     /// A TCP connection to `host:port`, then TLS verified for `domain` (or
     /// `host`), presenting the client certificate as its files are now.
-    pub async fn connect(&self, host: &str, port: u16) -> std::io::Result<tokio_rustls::client::TlsStream<TcpStream>> {
+    pub async fn connect(&self, host: &str, port: u16) -> std::io::Result<ClientStream> {
         if let Some(files) = &self.certificate {
             files.refresh();
         }
@@ -466,12 +469,12 @@ impl ClientConnector {
             .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
         let tcp = TcpStream::connect((host, port)).await?;
         tcp.set_nodelay(true)?;
-        tokio_rustls::TlsConnector::from(self.config.clone()).connect(name, tcp).await
+        tokio_rustls::TlsConnector::from(self.config.clone()).connect(name, BufferedTcp::new(tcp)).await
     }
 }
 
 impl tower::Service<http::Uri> for ClientConnector {
-    type Response = hyper_util::rt::TokioIo<tokio_rustls::client::TlsStream<TcpStream>>;
+    type Response = hyper_util::rt::TokioIo<ClientStream>;
     type Error = std::io::Error;
     type Future = futures::future::BoxFuture<'static, std::io::Result<Self::Response>>;
 
@@ -488,5 +491,88 @@ impl tower::Service<http::Uri> for ClientConnector {
             let port = uri.port_u16().unwrap_or(443);
             this.connect(host, port).await.map(hyper_util::rt::TokioIo::new)
         })
+    }
+}
+
+/// A server's end of an accepted connection, after its TLS handshake.
+pub type ServerStream = tokio_rustls::server::TlsStream<BufferedTcp>;
+/// A client's end of a connection, after its TLS handshake.
+pub type ClientStream = tokio_rustls::client::TlsStream<BufferedTcp>;
+
+/// Bytes [`BufferedTcp`] reads from its socket at a time, at most.
+pub const READ_BUFFER: usize = 256 * 1024;
+
+/// A TCP connection read up to [`READ_BUFFER`] bytes at a time, written
+/// straight through. rustls reads its transport 4 KiB at a time (its
+/// deframer's read size); below it, this turns a megabyte frame's hundreds
+/// of socket reads into a few and hands rustls its 4 KiB from memory.
+/// `cargo bench -p vlnav-runtime --bench hop` measures a hop with it.
+#[derive(Debug)]
+pub struct BufferedTcp(tokio::io::BufReader<TcpStream>);
+
+impl BufferedTcp {
+    pub fn new(tcp: TcpStream) -> Self {
+        Self(tokio::io::BufReader::with_capacity(READ_BUFFER, tcp))
+    }
+
+    /// The socket.
+    pub fn get_ref(&self) -> &TcpStream {
+        self.0.get_ref()
+    }
+}
+
+impl tokio::io::AsyncRead for BufferedTcp {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_read(cx, buf)
+    }
+}
+
+impl tokio::io::AsyncWrite for BufferedTcp {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.0).poll_write(cx, buf)
+    }
+
+    fn poll_write_vectored(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        bufs: &[std::io::IoSlice<'_>],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.0).poll_write_vectored(cx, bufs)
+    }
+
+    fn is_write_vectored(&self) -> bool {
+        self.0.is_write_vectored()
+    }
+
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_flush(cx)
+    }
+
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_shutdown(cx)
+    }
+}
+
+/// The peer's address, as tonic gives a plain socket's to its handlers
+/// (and, under TLS, beside the peer's certificates: crate::authz).
+impl tonic::transport::server::Connected for BufferedTcp {
+    type ConnectInfo = tonic::transport::server::TcpConnectInfo;
+
+    fn connect_info(&self) -> Self::ConnectInfo {
+        <TcpStream as tonic::transport::server::Connected>::connect_info(self.get_ref())
     }
 }

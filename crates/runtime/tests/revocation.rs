@@ -258,10 +258,7 @@ async fn a_renewed_server_certificate_is_presented_to_new_connections_while_stre
 async fn presented(
     connector: &vlnav_runtime::tls::ClientConnector,
     port: u16,
-    accepted: &mut (
-             impl tokio_stream::Stream<Item = std::io::Result<tokio_rustls::server::TlsStream<tokio::net::TcpStream>>>
-             + Unpin
-         ),
+    accepted: &mut (impl tokio_stream::Stream<Item = std::io::Result<vlnav_runtime::tls::ServerStream>> + Unpin),
 ) -> String {
     let (client, server) = tokio::join!(connector.connect("127.0.0.1", port), accepted.next());
     client.unwrap();
