@@ -102,12 +102,12 @@ fn hop(c: &mut Criterion) {
         })
     });
     for (name, ch) in channels {
-        let mut client = SegmenterServiceClient::new(ch).max_decoding_message_size(64 << 20);
+        let mut client = SegmenterServiceClient::new(ch);
         // Connect (and for TLS, shake hands) before measuring.
         rt.block_on(client.segment(req.clone())).expect("the stage answers");
         g.bench_function(format!("Segment call, {name}"), |b| {
-            // The request is copied outside the measurement, as the gateway
-            // builds each stage's request before its call.
+            // The request is built outside the measurement (its images are
+            // shared `Bytes`), as the gateway builds it before its call.
             b.to_async(&rt).iter_batched(
                 || (client.clone(), req.clone()),
                 |(mut client, req)| async move { client.segment(req).await.unwrap().into_inner().width },
