@@ -14,8 +14,12 @@ use std::time::Duration;
 
 use opentelemetry::propagation::Injector;
 use tonic::body::Body;
-use tonic::transport::channel::Change;
 use tonic::transport::{Channel, Endpoint};
+use tower::balance::p2c::Balance;
+use tower::buffer::Buffer;
+use tower::discover::Change;
+use tower::load::{CompleteOnResponse, PendingRequests};
+use tower::util::BoxService;
 use tracing::Instrument;
 use tracing_opentelemetry::OpenTelemetrySpanExt;
 
@@ -61,28 +65,59 @@ impl Injector for HeaderInjector<'_> {
     }
 }
 
+/// The error a call through a [`TracedChannel`] fails with before it has a
+/// gRPC status (tonic turns it into UNAVAILABLE, UNKNOWN, …).
+pub type BoxError = Box<dyn std::error::Error + Send + Sync>;
+
+type BoxFuture<T> = Pin<Box<dyn Future<Output = T> + Send>>;
+
+/// Requests spread over the replicas of a `dns:///` address ([`balanced`]).
+type BalancedChannel = Buffer<http::Request<Body>, BoxFuture<Result<http::Response<Body>, BoxError>>>;
+
+/// Where a [`TracedChannel`]'s calls go.
+#[derive(Clone)]
+enum Route {
+    /// One address: one HTTP/2 connection, reconnected when it drops.
+    One(Channel),
+    /// The replicas behind a name, each call to the less loaded of two
+    /// picked at random ([`Replica`]).
+    Balanced(BalancedChannel),
+}
+
+impl std::fmt::Debug for Route {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Route::One(c) => f.debug_tuple("One").field(c).finish(),
+            Route::Balanced(_) => f.write_str("Balanced"),
+        }
+    }
+}
+
 /// A channel whose every call is a client span (`call <Method>`, kind
 /// client) and carries that span's trace context, so the server's span is
 /// its child.
 #[derive(Clone, Debug)]
 pub struct TracedChannel {
-    inner: Channel,
+    route: Route,
     inject: InjectTraceContext,
 }
 
 impl TracedChannel {
     pub fn new(inner: Channel, inject: InjectTraceContext) -> Self {
-        Self { inner, inject }
+        Self { route: Route::One(inner), inject }
     }
 }
 
 impl tower::Service<http::Request<Body>> for TracedChannel {
     type Response = http::Response<Body>;
-    type Error = tonic::transport::Error;
-    type Future = Pin<Box<dyn Future<Output = Result<Self::Response, Self::Error>> + Send>>;
+    type Error = BoxError;
+    type Future = BoxFuture<Result<Self::Response, Self::Error>>;
 
     fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
-        self.inner.poll_ready(cx)
+        match &mut self.route {
+            Route::One(c) => c.poll_ready(cx).map_err(Into::into),
+            Route::Balanced(b) => b.poll_ready(cx),
+        }
     }
 
     fn call(&mut self, mut req: http::Request<Body>) -> Self::Future {
@@ -98,9 +133,18 @@ impl tower::Service<http::Request<Body>> for TracedChannel {
         );
         span.in_scope(|| self.inject.inject_headers(req.headers_mut()));
         // Clone-and-swap keeps the channel that was polled ready for this call.
-        let clone = self.inner.clone();
-        let mut inner = std::mem::replace(&mut self.inner, clone);
-        Box::pin(async move { inner.call(req).await }.instrument(span))
+        match &mut self.route {
+            Route::One(c) => {
+                let clone = c.clone();
+                let mut ready = std::mem::replace(c, clone);
+                Box::pin(async move { ready.call(req).await.map_err(Into::into) }.instrument(span))
+            }
+            Route::Balanced(b) => {
+                let clone = b.clone();
+                let mut ready = std::mem::replace(b, clone);
+                Box::pin(async move { ready.call(req).await }.instrument(span))
+            }
+        }
     }
 }
 
@@ -112,32 +156,24 @@ pub const DNS_REFRESH: Duration = Duration::from_secs(10);
 #[error("{0}")]
 pub struct AddressError(String);
 
-/// The endpoint settings every client connection uses; `https://` addresses
-/// are verified against `tls` (and present its certificate), with `domain`
-/// the name the server's certificate must carry when it is not the URI's host.
-fn endpoint(uri: &str, tls: Option<&ClientTls>, domain: Option<&str>) -> Result<Endpoint, AddressError> {
-    let ep = Endpoint::from_shared(uri.to_string())
-        .map_err(|e| AddressError(format!("{uri:?} is not a URI ({e}); write http://host:port or dns:///host:port")))?
-        .connect_timeout(Duration::from_secs(5))
-        .tcp_nodelay(true)
-        // Pings find a vanished server (or a partition) within interval +
-        // timeout, also between requests (docs/architecture.md, "Overload").
-        .http2_keep_alive_interval(KEEPALIVE_INTERVAL)
-        .keep_alive_timeout(KEEPALIVE_TIMEOUT)
-        .keep_alive_while_idle(true)
-        // RGB-D frames are megabytes: h2's default 64 KiB windows would cost a
-        // round trip per 64 KiB of every frame.
-        .initial_stream_window_size(STREAM_WINDOW)
-        .initial_connection_window_size(CONNECTION_WINDOW);
-    if !uri.starts_with("https://") {
-        return Ok(ep);
-    }
-    let tls = tls.ok_or_else(|| {
-        AddressError(format!(
-            "{uri:?} is TLS but no CA to verify it against was given: pass --tls-ca (VLNAV_TLS_CA), or use http:// for a plaintext server"
-        ))
-    })?;
-    ep.tls_config(tls.config(domain)).map_err(|e| AddressError(format!("{uri:?}: cannot set up TLS: {e}")))
+/// The endpoint settings every client connection uses (TLS, when wanted,
+/// is a connector's: [`Connect`]).
+fn endpoint(uri: &str) -> Result<Endpoint, AddressError> {
+    Endpoint::from_shared(uri.to_string())
+        .map_err(|e| AddressError(format!("{uri:?} is not a URI ({e}); write http://host:port or dns:///host:port")))
+        .map(|ep| {
+            ep.connect_timeout(Duration::from_secs(5))
+                .tcp_nodelay(true)
+                // Pings find a vanished server (or a partition) within interval +
+                // timeout, also between requests (docs/architecture.md, "Overload").
+                .http2_keep_alive_interval(KEEPALIVE_INTERVAL)
+                .keep_alive_timeout(KEEPALIVE_TIMEOUT)
+                .keep_alive_while_idle(true)
+                // RGB-D frames are megabytes: h2's default 64 KiB windows would cost a
+                // round trip per 64 KiB of every frame.
+                .initial_stream_window_size(STREAM_WINDOW)
+                .initial_connection_window_size(CONNECTION_WINDOW)
+        })
 }
 
 /// A lazily connecting channel to `uri`: the service may start after its
@@ -148,49 +184,75 @@ fn endpoint(uri: &str, tls: Option<&ClientTls>, domain: Option<&str>) -> Result<
 ///   connections, and gRPC keeps its connection.
 /// - `dns:///host:port`: every address `host` resolves to, resolved again
 ///   every [`DNS_REFRESH`], each request sent to the less loaded of two
-///   ready replicas picked at random (tower's power-of-two-choices
-///   balancer). Pointed at a headless Service, new replicas take load within
-///   one refresh and removed ones stop getting any. Needs a Tokio runtime.
+///   ready replicas picked at random (tower's power-of-two-choices balancer,
+///   load being calls in flight: [`Replica`]). Pointed at a headless Service, new
+///   replicas take load within one refresh and removed ones stop getting
+///   any. Needs a Tokio runtime.
 pub fn channel(uri: &str) -> Result<TracedChannel, AddressError> {
     channel_with(uri, &ClientSecurity::none())
 }
 
 /// [`channel`] with TLS and a bearer token: `https://host:port` is verified
 /// against `security.tls`, and `dns:///host:port` connects to each replica
-/// with TLS (verified for `host`) whenever `security.tls` is given.
+/// with TLS (verified for `host`) whenever `security.tls` is given. Either
+/// way TLS is the connector of [`crate::tls`]: a client certificate is read
+/// again from its files before each new connection when they changed.
 pub fn channel_with(uri: &str, security: &ClientSecurity) -> Result<TracedChannel, AddressError> {
     let tls = security.tls.as_ref();
-    let ch = match uri.strip_prefix("dns:///") {
+    let route = match uri.strip_prefix("dns:///") {
         Some(target) => {
             let (host, port) = host_port(target).ok_or_else(|| {
                 AddressError(format!("{uri:?}: write dns:///host:port (a name or an address, and a port)"))
             })?;
-            let name = format!("{host}:{port}");
-            let scheme = if tls.is_some() { "https" } else { "http" };
-            balanced_with(
-                &format!("{scheme}://{name}"),
-                move || tokio::net::lookup_host(name.clone()),
-                DNS_REFRESH,
-                tls,
-                Some(host),
-            )?
+            // An IPv6 address keeps its brackets in `host:port`.
+            let name = if host.contains(':') { format!("[{host}]:{port}") } else { format!("{host}:{port}") };
+            let fallback = name.clone();
+            let connect = Connect::new(uri, tls, Some(host))?;
+            let resolve = move || tokio::net::lookup_host(name.clone());
+            Route::Balanced(balanced_with(&fallback, resolve, DNS_REFRESH, connect)?)
         }
-        None => match (uri.strip_prefix("https://"), tls) {
-            // TLS by a connector of ours (crate::tls): the client
-            // certificate is read again from its files when they change.
-            (Some(rest), Some(tls)) => {
-                let connector =
-                    tls.connector(None).map_err(|e| AddressError(format!("{uri:?}: cannot set up TLS: {e:#}")))?;
-                endpoint(&format!("http://{rest}"), None, None)?.connect_with_connector_lazy(connector)
-            }
-            _ => endpoint(uri, tls, None)?.connect_lazy(),
+        None => match uri.strip_prefix("https://") {
+            Some(rest) => Route::One(Connect::new(uri, tls, None)?.lazy(rest)?),
+            None => Route::One(endpoint(uri)?.connect_lazy()),
         },
     };
-    let interceptor = match &security.bearer {
+    let inject = match &security.bearer {
         Some(token) => InjectTraceContext::with_bearer(token)?,
         None => InjectTraceContext::default(),
     };
-    Ok(TracedChannel::new(ch, interceptor))
+    Ok(TracedChannel { route, inject })
+}
+
+/// How a channel reaches one address: plain TCP, or TLS by the connector of
+/// [`crate::tls`].
+#[derive(Clone)]
+struct Connect(Option<crate::tls::ClientConnector>);
+
+impl Connect {
+    /// TLS when `tls` is given (`domain`: the name the server's certificate
+    /// must carry when it is not the address's host); an `https://` `uri`
+    /// without it is an error that says what to pass.
+    fn new(uri: &str, tls: Option<&ClientTls>, domain: Option<&str>) -> Result<Self, AddressError> {
+        match tls {
+            Some(tls) => tls
+                .connector(domain)
+                .map(|c| Self(Some(c)))
+                .map_err(|e| AddressError(format!("{uri:?}: cannot set up TLS: {e:#}"))),
+            None if uri.starts_with("https://") => Err(AddressError(format!(
+                "{uri:?} is TLS but no CA to verify it against was given: pass --tls-ca (VLNAV_TLS_CA), or use http:// for a plaintext server"
+            ))),
+            None => Ok(Self(None)),
+        }
+    }
+
+    /// A lazily connecting channel to `authority` (`host:port`).
+    fn lazy(&self, authority: &str) -> Result<Channel, AddressError> {
+        let ep = endpoint(&format!("http://{authority}"))?;
+        Ok(match &self.0 {
+            Some(connector) => ep.connect_with_connector_lazy(connector.clone()),
+            None => ep.connect_lazy(),
+        })
+    }
 }
 
 fn host_port(target: &str) -> Option<(&str, u16)> {
@@ -214,26 +276,38 @@ enum Member {
 }
 
 /// A channel balanced over the addresses `resolve` returns, called now and
-/// then every `refresh`. `fallback_uri` is what requests go to while it
-/// returns none. The resolver task ends when the channel is dropped.
-pub fn balanced<R, F, I>(fallback_uri: &str, resolve: R, refresh: Duration) -> Result<Channel, AddressError>
+/// then every `refresh`, in plaintext. `fallback_uri` (`http://host:port`)
+/// is what requests go to while it returns none. The resolver task ends when
+/// the channel and its clones are dropped.
+pub fn balanced<R, F, I>(fallback_uri: &str, resolve: R, refresh: Duration) -> Result<TracedChannel, AddressError>
 where
     R: FnMut() -> F + Send + 'static,
     F: Future<Output = std::io::Result<I>> + Send,
     I: Iterator<Item = SocketAddr>,
 {
-    balanced_with(fallback_uri, resolve, refresh, None, None)
+    let authority = fallback_uri
+        .strip_prefix("http://")
+        .ok_or_else(|| AddressError(format!("{fallback_uri:?}: write http://host:port")))?;
+    let route = Route::Balanced(balanced_with(authority, resolve, refresh, Connect(None))?);
+    Ok(TracedChannel { route, inject: InjectTraceContext::default() })
 }
 
-/// [`balanced`] over TLS when `fallback_uri` is `https://`: every replica is
-/// verified against `tls` as `domain`.
+/// A replica of a balanced channel, weighed by its calls in flight: of two
+/// replicas the one still busy with more calls gets the next one, so a slow
+/// or overloaded replica gets fewer calls than an idle one, and equal ones
+/// share evenly. (Weighing by round-trip time as well, tower's `PeakEwma`,
+/// leaves a replica whose first call paid for the connection without calls
+/// for tens of seconds.)
+type Replica = PendingRequests<Channel>;
+
+/// [`balanced`], each replica reached by `connect`; `fallback` is the
+/// `host:port` requests go to while no replica is known.
 fn balanced_with<R, F, I>(
-    fallback_uri: &str,
+    fallback: &str,
     mut resolve: R,
     refresh: Duration,
-    tls: Option<&ClientTls>,
-    domain: Option<&str>,
-) -> Result<Channel, AddressError>
+    connect: Connect,
+) -> Result<BalancedChannel, AddressError>
 where
     R: FnMut() -> F + Send + 'static,
     F: Future<Output = std::io::Result<I>> + Send,
@@ -242,14 +316,17 @@ where
     let runtime = tokio::runtime::Handle::try_current().map_err(|_| {
         AddressError("a dns:/// address is resolved in the background and needs a Tokio runtime".into())
     })?;
-    let fallback = endpoint(fallback_uri, tls, domain)?;
-    let scheme = if fallback_uri.starts_with("https://") { "https" } else { "http" };
-    let (tls, domain) = (tls.cloned(), domain.map(str::to_string));
-    let (channel, changes) = Channel::balance_channel::<Member>(64);
+    let weigh = |c: Channel| PendingRequests::new(c, CompleteOnResponse::default());
+    let fallback_channel = connect.lazy(fallback)?;
+    let (changes, discovered) =
+        tokio::sync::mpsc::channel::<Result<Change<Member, Replica>, std::convert::Infallible>>(64);
     changes
-        .try_send(Change::Insert(Member::Name, fallback.clone()))
+        .try_send(Ok(Change::Insert(Member::Name, weigh(fallback_channel.clone()))))
         .map_err(|e| AddressError(format!("cannot start the balancer: {e}")))?;
-    let label = fallback_uri.to_string();
+    let balance = Balance::new(tokio_stream::wrappers::ReceiverStream::new(discovered));
+    let (channel, worker) = Buffer::pair(BoxService::new(balance), 1024);
+    runtime.spawn(worker);
+    let label = fallback.to_string();
     runtime.spawn(async move {
         let mut members: HashSet<Member> = HashSet::from([Member::Name]);
         let mut tick = tokio::time::interval(refresh);
@@ -269,23 +346,23 @@ where
             let next = if next.is_empty() { HashSet::from([Member::Name]) } else { next };
             for member in members.difference(&next) {
                 tracing::info!(service = %label, ?member, "replica removed");
-                if changes.send(Change::Remove(member.clone())).await.is_err() {
+                if changes.send(Ok(Change::Remove(member.clone()))).await.is_err() {
                     return;
                 }
             }
             for member in next.difference(&members) {
-                let ep = match member {
-                    Member::Replica(addr) => match endpoint(&format!("{scheme}://{addr}"), tls.as_ref(), domain.as_deref()) {
-                        Ok(ep) => ep,
+                let svc = match member {
+                    Member::Replica(addr) => match connect.lazy(&addr.to_string()) {
+                        Ok(c) => weigh(c),
                         Err(e) => {
                             tracing::warn!(service = %label, "{e}");
                             continue;
                         }
                     },
-                    Member::Name => fallback.clone(),
+                    Member::Name => weigh(fallback_channel.clone()),
                 };
                 tracing::info!(service = %label, ?member, "replica added");
-                if changes.send(Change::Insert(member.clone(), ep)).await.is_err() {
+                if changes.send(Ok(Change::Insert(member.clone(), svc))).await.is_err() {
                     return;
                 }
             }
