@@ -204,8 +204,7 @@ pub fn channel_with(uri: &str, security: &ClientSecurity) -> Result<TracedChanne
             let (host, port) = host_port(target).ok_or_else(|| {
                 AddressError(format!("{uri:?}: write dns:///host:port (a name or an address, and a port)"))
             })?;
-            // An IPv6 address keeps its brackets in `host:port`.
-            let name = if host.contains(':') { format!("[{host}]:{port}") } else { format!("{host}:{port}") };
+            let name = authority(host, port);
             let fallback = name.clone();
             let connect = Connect::new(uri, tls, Some(host))?;
             let resolve = move || tokio::net::lookup_host(name.clone());
@@ -253,6 +252,11 @@ impl Connect {
             None => ep.connect_lazy(),
         })
     }
+}
+
+/// `host:port`, an IPv6 address in brackets (what a resolver and a URI take).
+fn authority(host: &str, port: u16) -> String {
+    if host.contains(':') { format!("[{host}]:{port}") } else { format!("{host}:{port}") }
 }
 
 fn host_port(target: &str) -> Option<(&str, u16)> {
@@ -370,4 +374,27 @@ where
         }
     });
     Ok(channel)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn a_dns_target_splits_into_an_authority_the_resolver_takes() {
+        for (target, want) in [
+            ("detector-replicas:50054", "detector-replicas:50054"),
+            ("10.0.0.7:50054", "10.0.0.7:50054"),
+            ("[::1]:50054", "[::1]:50054"),
+        ] {
+            let (host, port) = host_port(target).unwrap();
+            let name = authority(host, port);
+            assert_eq!(name, want);
+            if !host.contains('-') {
+                let addrs: Vec<SocketAddr> = tokio::net::lookup_host(&name).await.unwrap().collect();
+                assert_eq!(addrs, [name.parse::<SocketAddr>().unwrap()], "{target}");
+            }
+        }
+        assert_eq!(host_port("[::1]"), None);
+    }
 }
