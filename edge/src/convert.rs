@@ -71,13 +71,24 @@ pub struct FrameMeta<'a> {
     pub codecs: Codecs,
 }
 
-/// A depth image of `width`×`height` millimetres (0: no return) as `codec` sends it.
-pub fn depth_image(width: u32, height: u32, depth_mm: &[u16], codec: DepthCodec) -> pb::DepthImage {
-    let (data_mm, encoding) = match codec {
-        DepthCodec::Raw => (u16_le(depth_mm), pb::DepthEncoding::RawU16),
-        DepthCodec::Rvl => (vlnav_geometry::rvl::encode(depth_mm), pb::DepthEncoding::Rvl),
+/// A depth image of `width`×`height` millimetres (0: no return) as
+/// `codecs.depth` sends it. A disparity step the codec refuses (the agent's
+/// options are checked at start, so only a step set in code) sends raw depth,
+/// with a warning: a frame sent larger keeps the robot driven.
+pub fn depth_image(width: u32, height: u32, depth_mm: &[u16], codecs: Codecs) -> pb::DepthImage {
+    let step = codecs.disparity_step;
+    let (data_mm, encoding, disparity_step) = match codecs.depth {
+        DepthCodec::Raw => (u16_le(depth_mm), pb::DepthEncoding::RawU16, 0.0),
+        DepthCodec::Rvl => (vlnav_geometry::rvl::encode(depth_mm), pb::DepthEncoding::Rvl, 0.0),
+        DepthCodec::Disparity => match vlnav_geometry::disparity::encode(depth_mm, width as usize, step) {
+            Ok(data) => (data, pb::DepthEncoding::Disparity, step),
+            Err(e) => {
+                tracing::warn!("depth sent raw: {e}");
+                (u16_le(depth_mm), pb::DepthEncoding::RawU16, 0.0)
+            }
+        },
     };
-    pb::DepthImage { width, height, data_mm: data_mm.into(), encoding: encoding as i32 }
+    pb::DepthImage { width, height, data_mm: data_mm.into(), encoding: encoding as i32, disparity_step }
 }
 
 /// A colour image of `width`×`height` 8-bit RGB as `codecs` sends it. If
@@ -117,7 +128,7 @@ pub fn sim_frame(meta: FrameMeta<'_>, f: &Frame) -> pb::RgbdFrame {
         stamp: meta.stamp,
         camera: Some(meta.camera),
         rgb: Some(colour_image(f.width, f.height, Cow::Borrowed(&f.rgb), meta.codecs)),
-        depth: Some(depth_image(f.width, f.height, &f.depth_mm, meta.codecs.depth)),
+        depth: Some(depth_image(f.width, f.height, &f.depth_mm, meta.codecs)),
         odom: Some(pose_to_proto(&meta.odom)),
         odom_twist: Some(twist(&meta.odom_twist)),
         labels: Some(pb::LabelImage {
@@ -189,10 +200,21 @@ mod tests {
         assert_eq!(m.depth.unwrap().data_mm.len(), 64 * 48 * 2);
         // RVL carries the same millimetres in fewer bytes.
         let rvl_codecs = Codecs { depth: DepthCodec::Rvl, ..Codecs::default() };
-        let rvl = sim_frame(FrameMeta { codecs: rvl_codecs, ..meta }, &f).depth.unwrap();
+        let rvl = sim_frame(FrameMeta { codecs: rvl_codecs, ..meta.clone() }, &f).depth.unwrap();
         assert_eq!(rvl.encoding, pb::DepthEncoding::Rvl as i32);
         assert!(rvl.data_mm.len() < 64 * 48 * 2);
         assert_eq!(vlnav_geometry::rvl::decode(&rvl.data_mm, 64 * 48).unwrap(), f.depth_mm);
+        // Quantised disparity carries the step it was written with, and
+        // every pixel within its bound, in fewer bytes still.
+        let step = 0.01;
+        let q_codecs = Codecs { depth: DepthCodec::Disparity, disparity_step: step, ..Codecs::default() };
+        let q = sim_frame(FrameMeta { codecs: q_codecs, ..meta }, &f).depth.unwrap();
+        assert_eq!((q.encoding, q.disparity_step), (pb::DepthEncoding::Disparity as i32, step));
+        assert!(q.data_mm.len() < rvl.data_mm.len(), "{} against RVL's {}", q.data_mm.len(), rvl.data_mm.len());
+        let back = vlnav_geometry::disparity::decode(&q.data_mm, 64, 48, step).unwrap();
+        for (d, b) in f.depth_mm.iter().zip(back) {
+            assert!((*d as f64 - b as f64).abs() <= vlnav_geometry::disparity::max_error_mm(*d, step), "{d} -> {b}");
+        }
         let labels = m.labels.unwrap();
         assert_eq!(labels.instance_ids.len(), 64 * 48 * 2);
         assert!(labels.instances.iter().any(|i| i.semantic == "floor" && i.class_id == -1));
@@ -208,7 +230,8 @@ mod tests {
         let f = sim.render();
         let (w, h) = (f.width, f.height);
         assert_eq!((w, h), (640, 480));
-        let codecs = Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 85, depth: DepthCodec::Rvl };
+        let codecs =
+            Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 85, depth: DepthCodec::Rvl, ..Codecs::default() };
         let meta = meta_for(&sim, codecs);
         let m = sim_frame(meta, &f);
         let rgb = m.rgb.as_ref().unwrap();

@@ -99,6 +99,11 @@ pub enum DepthCodec {
     /// each end (`cargo bench -p vlnav-sim --bench depth_codec`). For an
     /// uplink whose bandwidth is the limit (docs/architecture.md, "Frames").
     Rvl,
+    /// Disparity quantised with --disparity-step, then compressed: a bounded
+    /// error (half a step of disparity, about step/2·z² of depth) for a
+    /// fraction of RVL's bytes (`vlnav_geometry::disparity`;
+    /// docs/architecture.md, "Frames").
+    Disparity,
 }
 
 /// How colour travels to the gateway (docs/architecture.md, "Frames").
@@ -126,26 +131,38 @@ impl DepthCodec {
         match self {
             DepthCodec::Raw => "raw",
             DepthCodec::Rvl => "rvl",
+            DepthCodec::Disparity => "disparity",
         }
     }
 }
+
+/// The disparity step of `--depth-codec disparity` unless told otherwise,
+/// 1/m: the D455's own depth noise.
+pub const DEFAULT_DISPARITY_STEP: f32 = vlnav_geometry::disparity::D455_STEP_PER_M;
 
 /// The JPEG quality of `--colour-codec jpeg` unless told otherwise.
 pub const DEFAULT_JPEG_QUALITY: u8 = 85;
 
 /// How a frame's images are sent up: `--colour-codec` at `--jpeg-quality`,
-/// and `--depth-codec`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// and `--depth-codec` at `--disparity-step`.
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Codecs {
     pub colour: ColourCodec,
     /// 1–100 (libjpeg's scale); read only with [`ColourCodec::Jpeg`].
     pub jpeg_quality: u8,
     pub depth: DepthCodec,
+    /// Disparity step, 1/m; read only with [`DepthCodec::Disparity`].
+    pub disparity_step: f32,
 }
 
 impl Default for Codecs {
     fn default() -> Self {
-        Self { colour: ColourCodec::Raw, jpeg_quality: DEFAULT_JPEG_QUALITY, depth: DepthCodec::Raw }
+        Self {
+            colour: ColourCodec::Raw,
+            jpeg_quality: DEFAULT_JPEG_QUALITY,
+            depth: DepthCodec::Raw,
+            disparity_step: DEFAULT_DISPARITY_STEP,
+        }
     }
 }
 
@@ -201,10 +218,17 @@ pub struct EdgeOptions {
     /// sim: end the run once simulation time reaches this many seconds.
     #[arg(long, env = "VLNAV_EDGE_MAX_SIM_TIME_S")]
     pub max_sim_time_s: Option<f64>,
-    /// How depth is sent: `raw`, or `rvl` (lossless, a third to a half of the
-    /// bytes, for a link whose bandwidth is the limit).
+    /// How depth is sent: `raw`; `rvl` (lossless, a third to a half of the
+    /// bytes); or `disparity` (within half of --disparity-step of each
+    /// pixel's disparity, about a tenth of the bytes), for a link whose
+    /// bandwidth is the limit (docs/architecture.md, "Frames").
     #[arg(long, env = "VLNAV_EDGE_DEPTH_CODEC", value_enum, default_value_t = DepthCodec::Raw)]
     pub depth_codec: DepthCodec,
+    /// Disparity step of --depth-codec disparity, 1/m, 0.0001–0.03. The
+    /// default, 0.005, is the D455's own depth noise (σ = 0.005·z²), so each
+    /// pixel stays within half of it: 10 mm at 2 m, 40 mm at 4 m.
+    #[arg(long, env = "VLNAV_EDGE_DISPARITY_STEP", default_value_t = DEFAULT_DISPARITY_STEP)]
+    pub disparity_step: f32,
     /// How colour is sent: `raw` RGB8, or `jpeg` (lossy, encoded here at
     /// --jpeg-quality in 15–18 ms a 640×480 frame: under a tenth of the bytes
     /// at 85, for a link whose bandwidth is the limit; it costs the detector
@@ -301,6 +325,7 @@ impl Default for EdgeOptions {
             estop: false,
             max_sim_time_s: None,
             depth_codec: DepthCodec::Raw,
+            disparity_step: DEFAULT_DISPARITY_STEP,
             colour_codec: ColourCodec::Raw,
             jpeg_quality: DEFAULT_JPEG_QUALITY,
             max_message_bytes: 16 * 1024 * 1024,
@@ -355,6 +380,9 @@ impl EdgeOptions {
         if !(0.0..=1.0).contains(&self.battery_low) {
             anyhow::bail!("--battery-low is a charge from 0 to 1, got {}", self.battery_low);
         }
+        if let Err(e) = vlnav_geometry::disparity::check_step(self.disparity_step) {
+            anyhow::bail!("--disparity-step: {e}");
+        }
         if !(1..=100).contains(&self.jpeg_quality) {
             anyhow::bail!("--jpeg-quality is from 1 (smallest) to 100 (finest), got {}", self.jpeg_quality);
         }
@@ -368,7 +396,12 @@ impl EdgeOptions {
 impl EdgeOptions {
     /// How this agent sends a frame's images.
     pub fn codecs(&self) -> Codecs {
-        Codecs { colour: self.colour_codec, jpeg_quality: self.jpeg_quality, depth: self.depth_codec }
+        Codecs {
+            colour: self.colour_codec,
+            jpeg_quality: self.jpeg_quality,
+            depth: self.depth_codec,
+            disparity_step: self.disparity_step,
+        }
     }
 
     /// The topics of the ROS driver, each flag left out taking the driver's default.
@@ -566,7 +599,13 @@ mod tests {
         assert_eq!(default.codecs(), Codecs::default());
         assert_eq!(default.codecs().colour, ColourCodec::Raw);
         let jpeg = parse(&["--colour-codec", "jpeg", "--jpeg-quality", "70", "--depth-codec", "rvl"]).unwrap();
-        assert_eq!(jpeg.codecs(), Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 70, depth: DepthCodec::Rvl });
+        assert_eq!(
+            jpeg.codecs(),
+            Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 70, depth: DepthCodec::Rvl, ..Codecs::default() }
+        );
+        let disparity = parse(&["--depth-codec", "disparity", "--disparity-step", "0.01"]).unwrap();
+        assert_eq!((disparity.codecs().depth, disparity.codecs().disparity_step), (DepthCodec::Disparity, 0.01));
+        assert!(disparity.validate().is_ok());
         assert_eq!(parse(&["--color-codec", "jpeg"]).unwrap().colour_codec, ColourCodec::Jpeg);
         assert!(jpeg.validate().is_ok());
     }
@@ -582,5 +621,7 @@ mod tests {
         // Settings built in code are checked as the flags are.
         let e = EdgeOptions { jpeg_quality: 0, ..EdgeOptions::default() }.validate().unwrap_err().to_string();
         assert!(e.contains("--jpeg-quality is from 1 (smallest) to 100 (finest), got 0"), "{e}");
+        let e = parse(&["--depth-codec", "disparity", "--disparity-step", "0.5"]).unwrap().validate().unwrap_err();
+        assert!(e.to_string().contains("--disparity-step: the disparity step 0.5"), "{e}");
     }
 }

@@ -54,7 +54,7 @@ impl Recorded {
             let colour = f.rgb.take().ok_or_else(|| anyhow::anyhow!("recorded frame {i} has no colour image"))?;
             f.rgb = Some(colour_as(colour, w, h, codecs).map_err(|e| anyhow::anyhow!("recorded frame {i}: {e}"))?);
             let depth = f.depth.take().ok_or_else(|| anyhow::anyhow!("recorded frame {i} has no depth image"))?;
-            f.depth = Some(depth_as(depth, codecs.depth).map_err(|e| anyhow::anyhow!("recorded frame {i}: {e}"))?);
+            f.depth = Some(depth_as(depth, codecs).map_err(|e| anyhow::anyhow!("recorded frame {i}: {e}"))?);
             images.push(f);
             truths.push(sf.truth);
         }
@@ -89,12 +89,18 @@ fn colour_as(img: pb::Image, width: u32, height: u32, codecs: Codecs) -> anyhow:
     }
 }
 
-/// A recorded depth image as `codec` sends it.
-fn depth_as(d: pb::DepthImage, codec: DepthCodec) -> anyhow::Result<pb::DepthImage> {
+/// A recorded depth image as `codecs.depth` sends it.
+fn depth_as(d: pb::DepthImage, codecs: Codecs) -> anyhow::Result<pb::DepthImage> {
     let pixels = d.width as usize * d.height as usize;
+    let codec = codecs.depth;
     let mm: Vec<u16> = match pb::DepthEncoding::try_from(d.encoding) {
         Ok(pb::DepthEncoding::RawU16) if codec == DepthCodec::Raw => return Ok(d),
         Ok(pb::DepthEncoding::Rvl) if codec == DepthCodec::Rvl => return Ok(d),
+        Ok(pb::DepthEncoding::Disparity)
+            if codec == DepthCodec::Disparity && d.disparity_step == codecs.disparity_step =>
+        {
+            return Ok(d);
+        }
         Ok(pb::DepthEncoding::RawU16) => {
             if d.data_mm.len() != pixels * 2 {
                 anyhow::bail!("raw depth of {} bytes for {}×{}", d.data_mm.len(), d.width, d.height);
@@ -102,9 +108,12 @@ fn depth_as(d: pb::DepthImage, codec: DepthCodec) -> anyhow::Result<pb::DepthIma
             d.data_mm.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect()
         }
         Ok(pb::DepthEncoding::Rvl) => vlnav_geometry::rvl::decode(&d.data_mm, pixels)?,
+        Ok(pb::DepthEncoding::Disparity) => {
+            vlnav_geometry::disparity::decode(&d.data_mm, d.width as usize, d.height as usize, d.disparity_step)?
+        }
         _ => anyhow::bail!("depth encoding {} cannot be replayed", d.encoding),
     };
-    Ok(convert::depth_image(d.width, d.height, &mm, codec))
+    Ok(convert::depth_image(d.width, d.height, &mm, codecs))
 }
 
 /// One robot replaying [`Recorded`] frames.
@@ -234,7 +243,7 @@ mod tests {
                 stamp: seq as f64 * 0.1,
                 camera: Some(pb::CameraInfo { width: w, height: h, ..Default::default() }),
                 rgb: Some(convert::colour_image(w, h, rgb.into(), codecs)),
-                depth: Some(convert::depth_image(w, h, &depth, DepthCodec::Raw)),
+                depth: Some(convert::depth_image(w, h, &depth, Codecs::default())),
                 odom: Some(pose_to_proto(&Pose2::new(5.0, 1.0, 0.3))),
                 ..Default::default()
             }),
@@ -293,13 +302,14 @@ mod tests {
     #[test]
     fn recorded_images_are_sent_with_the_robots_codecs_and_decode_to_the_same_depth() {
         let raw = Recorded::new(vec![frame(0, 16, 12)], Codecs::default()).unwrap();
-        let codecs = Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 90, depth: DepthCodec::Rvl };
+        let codecs =
+            Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 90, depth: DepthCodec::Rvl, ..Codecs::default() };
         let packed = Recorded::new(vec![frame(0, 16, 12)], codecs).unwrap();
         let (r, p) = (&raw.frames[0], &packed.frames[0]);
         assert_eq!(p.rgb.as_ref().unwrap().encoding, pb::ImageEncoding::Jpeg as i32);
         let d = p.depth.as_ref().unwrap();
         assert_eq!(d.encoding, pb::DepthEncoding::Rvl as i32);
-        let back = depth_as(d.clone(), DepthCodec::Raw).unwrap();
+        let back = depth_as(d.clone(), Codecs::default()).unwrap();
         assert_eq!(back.data_mm, r.depth.as_ref().unwrap().data_mm, "RVL is lossless");
         // And back to raw colour from the JPEG: the right size.
         let again =

@@ -439,7 +439,7 @@ impl<R: RosPlatform> Session<'_, R> {
                         stamp: f.stamp,
                         camera: Some(camera_info(opts, f.width, f.height, f.intrinsics)),
                         rgb: Some(convert::colour_image(f.width, f.height, std::borrow::Cow::Owned(f.rgb), opts.codecs())),
-                        depth: Some(depth_le(f.width, f.height, f.depth_mm_le, opts.depth_codec)),
+                        depth: Some(depth_le(f.width, f.height, f.depth_mm_le, opts.codecs())),
                         odom: Some(pose_to_proto(&odom_pose)),
                         odom_twist: Some(convert::twist(&odom_twist)),
                         labels: None,
@@ -491,15 +491,19 @@ impl<R: RosPlatform> Session<'_, R> {
     }
 }
 
-/// The camera's little-endian millimetres as `codec` sends them.
-fn depth_le(width: u32, height: u32, mm_le: Vec<u8>, codec: crate::DepthCodec) -> pb::DepthImage {
-    match codec {
-        crate::DepthCodec::Raw => {
-            pb::DepthImage { width, height, data_mm: mm_le.into(), encoding: pb::DepthEncoding::RawU16 as i32 }
-        }
-        crate::DepthCodec::Rvl => {
+/// The camera's little-endian millimetres as `codecs.depth` sends them.
+fn depth_le(width: u32, height: u32, mm_le: Vec<u8>, codecs: crate::Codecs) -> pb::DepthImage {
+    match codecs.depth {
+        crate::DepthCodec::Raw => pb::DepthImage {
+            width,
+            height,
+            data_mm: mm_le.into(),
+            encoding: pb::DepthEncoding::RawU16 as i32,
+            disparity_step: 0.0,
+        },
+        crate::DepthCodec::Rvl | crate::DepthCodec::Disparity => {
             let mm: Vec<u16> = mm_le.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
-            convert::depth_image(width, height, &mm, codec)
+            convert::depth_image(width, height, &mm, codecs)
         }
     }
 }

@@ -70,33 +70,50 @@ pub(crate) fn is_encoded(frame: &RgbdFrame) -> bool {
     frame.depth.as_ref().is_some_and(|d| d.encoding != DepthEncoding::RawU16 as i32)
 }
 
-/// Decodes RVL depth (the robot link's codec, docs/architecture.md "Frames")
-/// in place, so that everything past the gateway reads raw u16 millimetres.
-/// The declared size bounds what is decoded, whatever the stream says.
+/// Decodes depth compressed on the robot's link (RVL or quantised
+/// disparity, docs/architecture.md "Frames") in place, so that everything
+/// past the gateway reads raw u16 millimetres. The declared size bounds what
+/// is decoded, whatever the stream says.
 pub(crate) fn decode_depth(frame: &mut RgbdFrame) -> Result<(), FrameError> {
     let seq = frame.seq;
     let Some(depth) = frame.depth.as_mut() else { return Ok(()) };
-    match DepthEncoding::try_from(depth.encoding) {
-        Ok(DepthEncoding::RawU16) => Ok(()),
-        Ok(DepthEncoding::Rvl) => {
-            let (w, h) = (depth.width, depth.height);
-            if w == 0 || h == 0 || w > MAX_SIDE || h > MAX_SIDE {
-                return Err(FrameError::Invalid {
-                    seq,
-                    what: format!("depth size {w}x{h} is outside 1..={MAX_SIDE} pixels per side"),
-                });
-            }
-            let raw = vlnav_geometry::rvl::decode_le_bytes(&depth.data_mm, w as usize * h as usize)
-                .map_err(|e| FrameError::Invalid { seq, what: format!("depth (RVL): {e}") })?;
-            depth.data_mm = raw.into();
-            depth.encoding = DepthEncoding::RawU16 as i32;
-            Ok(())
+    let (w, h) = (depth.width, depth.height);
+    let size = || {
+        if w == 0 || h == 0 || w > MAX_SIDE || h > MAX_SIDE {
+            Err(FrameError::Invalid {
+                seq,
+                what: format!("depth size {w}x{h} is outside 1..={MAX_SIDE} pixels per side"),
+            })
+        } else {
+            Ok((w as usize, h as usize))
         }
-        Err(_) => Err(FrameError::Invalid {
-            seq,
-            what: format!("depth encoding {} is unknown (0: raw u16 millimetres, 1: RVL)", depth.encoding),
-        }),
-    }
+    };
+    let raw = match DepthEncoding::try_from(depth.encoding) {
+        Ok(DepthEncoding::RawU16) => return Ok(()),
+        Ok(DepthEncoding::Rvl) => {
+            let (w, h) = size()?;
+            vlnav_geometry::rvl::decode_le_bytes(&depth.data_mm, w * h)
+                .map_err(|e| FrameError::Invalid { seq, what: format!("depth (RVL): {e}") })?
+        }
+        Ok(DepthEncoding::Disparity) => {
+            let (w, h) = size()?;
+            vlnav_geometry::disparity::decode_le_bytes(&depth.data_mm, w, h, depth.disparity_step)
+                .map_err(|e| FrameError::Invalid { seq, what: format!("depth (quantised disparity): {e}") })?
+        }
+        Err(_) => {
+            return Err(FrameError::Invalid {
+                seq,
+                what: format!(
+                    "depth encoding {} is unknown (0: raw u16 millimetres, 1: RVL, 2: quantised disparity)",
+                    depth.encoding
+                ),
+            });
+        }
+    };
+    depth.data_mm = raw.into();
+    depth.encoding = DepthEncoding::RawU16 as i32;
+    depth.disparity_step = 0.0;
+    Ok(())
 }
 
 /// A sensor frame that passed [`check_frame`] (its depth decoded first,
@@ -296,7 +313,13 @@ pub(crate) mod tests {
                 encoding: ImageEncoding::Rgb8 as i32,
                 data: vec![0; (w * h * 3) as usize].into(),
             }),
-            depth: Some(DepthImage { width: w, height: h, data_mm: vec![0; (w * h * 2) as usize].into(), encoding: 0 }),
+            depth: Some(DepthImage {
+                width: w,
+                height: h,
+                data_mm: vec![0; (w * h * 2) as usize].into(),
+                encoding: 0,
+                disparity_step: 0.0,
+            }),
             odom: Some(Pose2D { x: 0.0, y: 0.0, theta: 0.0 }),
             odom_twist: None,
             labels: None,
@@ -323,6 +346,20 @@ pub(crate) mod tests {
         let back: Vec<u16> = depth.data_mm.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])).collect();
         assert_eq!(back, mm);
         assert_eq!(check_frame(&f, None), Ok(()));
+        // Quantised disparity comes back within its bound.
+        let mut q = frame(8, 6);
+        let step = vlnav_geometry::disparity::D455_STEP_PER_M;
+        let depth = q.depth.as_mut().unwrap();
+        depth.data_mm = vlnav_geometry::disparity::encode(&mm, 8, step).unwrap().into();
+        (depth.encoding, depth.disparity_step) = (DepthEncoding::Disparity as i32, step);
+        decode_depth(&mut q).unwrap();
+        let depth = q.depth.as_ref().unwrap();
+        assert_eq!((depth.encoding, depth.disparity_step), (DepthEncoding::RawU16 as i32, 0.0));
+        let back = depth.data_mm.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]]));
+        for (d, b) in mm.iter().zip(back) {
+            assert!((*d as f64 - b as f64).abs() <= vlnav_geometry::disparity::max_error_mm(*d, step), "{d} -> {b}");
+        }
+        assert_eq!(check_frame(&q, None), Ok(()));
         // Raw depth is left alone.
         let mut raw = frame(8, 6);
         decode_depth(&mut raw).unwrap();
@@ -337,6 +374,11 @@ pub(crate) mod tests {
         depth.encoding = DepthEncoding::Rvl as i32;
         let e = decode_depth(&mut f).unwrap_err().to_string();
         assert!(e.starts_with("frame 7: depth (RVL): the RVL stream"), "{e}");
+        // A disparity stream without its step names the step.
+        (f.depth.as_mut().unwrap().encoding, f.depth.as_mut().unwrap().disparity_step) =
+            (DepthEncoding::Disparity as i32, 0.0);
+        let e = decode_depth(&mut f).unwrap_err().to_string();
+        assert!(e.starts_with("frame 7: depth (quantised disparity): the disparity step 0"), "{e}");
         f.depth.as_mut().unwrap().encoding = 9;
         let e = decode_depth(&mut f).unwrap_err().to_string();
         assert!(e.contains("depth encoding 9 is unknown"), "{e}");

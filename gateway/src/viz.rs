@@ -981,7 +981,7 @@ mod tests {
             frame: Some(pb::RgbdFrame {
                 seq,
                 stamp: seq as f64 * 0.1,
-                depth: Some(pb::DepthImage { width: 640, height: 480, data_mm, encoding: 0 }),
+                depth: Some(pb::DepthImage { width: 640, height: 480, data_mm, encoding: 0, disparity_step: 0.0 }),
                 ..Default::default()
             }),
             truth: None,

@@ -31,6 +31,7 @@ fn frame(robot: &str, seq: u64, w: u32, h: u32, theta: f64) -> EdgeMessage {
                     height: h,
                     data_mm: vec![0; (w * h * 2) as usize].into(),
                     encoding: 0,
+                    disparity_step: 0.0,
                 }),
                 odom: Some(Pose2D { x: 0.0, y: 0.0, theta }),
                 ..Default::default()

@@ -31,6 +31,7 @@ async fn a_small_evaluation_runs_through_the_real_services() {
         no_progress: true,
         perception: vlnav_eval::PerceptionMode::Realistic,
         beside: None,
+        ..vlnav_eval::EvalArgs::default()
     };
     let rerun = vlnav_eval::EvalArgs { out: again.path().to_path_buf(), jobs: 1, ..args.clone() };
     let report = vlnav_eval::run_eval(args, t.eval_target()).await.expect("the evaluation runs");

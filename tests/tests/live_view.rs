@@ -161,11 +161,13 @@ async fn a_mission_is_seen_live_and_its_recording_reads_back_with_the_mcap_libra
 
     // The recording as the load generator's robot (`vlnav bench fleet
     // --replay`): its frames sent again in real time, with JPEG colour and
-    // RVL depth, by a robot whose odometry follows the commands, so a MOVE
-    // drives to its end.
+    // depth in quantised disparity (the compressed link of
+    // docs/architecture.md, "Frames"), by a robot whose odometry follows the
+    // commands, so a MOVE drives to its end.
     let frames = read_frames(&file, 20).expect("the recording's first frames");
     assert_eq!(frames.len(), 20);
-    let codecs = Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 80, depth: DepthCodec::Rvl };
+    let codecs =
+        Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 80, depth: DepthCodec::Disparity, ..Codecs::default() };
     let recorded = Recorded::new(frames, codecs).expect("the frames convert");
     let opts = EdgeOptions {
         gateway: t.uri(),

@@ -143,7 +143,7 @@ pub fn valid_frame(rng: &mut Rng, w: u32, h: u32, encoding: ImageEncoding) -> Rg
             depth_max_m: [0.0, 6.0, 10.0][rng.random_range(0..3)],
         }),
         rgb: Some(Image { width: w, height: h, encoding: encoding as i32, data: rgb_data.into() }),
-        depth: Some(DepthImage { width: w, height: h, data_mm: depth.into(), encoding: 0 }),
+        depth: Some(DepthImage { width: w, height: h, data_mm: depth.into(), encoding: 0, disparity_step: 0.0 }),
         odom: Some(Pose2D {
             x: rng.random_range(-50.0..50.0),
             y: rng.random_range(-50.0..50.0),

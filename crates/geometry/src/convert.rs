@@ -337,7 +337,13 @@ mod tests {
     #[test]
     fn depth_must_match_the_camera() {
         let cam = camera_from_proto(Some(&info()), "frame.camera", DEFAULTS).unwrap();
-        let d = pb::DepthImage { width: 4, height: 2, data_mm: encode_depth_mm(&[1.0; 8]).into(), encoding: 0 };
+        let d = pb::DepthImage {
+            width: 4,
+            height: 2,
+            data_mm: encode_depth_mm(&[1.0; 8]).into(),
+            encoding: 0,
+            disparity_step: 0.0,
+        };
         assert_eq!(depth_from_proto(Some(&d), &cam, "frame.depth").unwrap().mm(3, 1), 1000);
         assert_eq!(field_of(depth_from_proto(None, &cam, "frame.depth")), "frame.depth");
         let wide = pb::DepthImage { width: 8, height: 1, ..d.clone() };

@@ -18,6 +18,7 @@
 pub mod camera;
 pub mod convert;
 pub mod depth;
+pub mod disparity;
 pub mod pose;
 pub mod rgb;
 pub mod rvl;

@@ -62,7 +62,7 @@ fn label_frame() -> v1::RgbdFrame {
         .collect();
     v1::RgbdFrame {
         seq: 1,
-        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth.into(), encoding: 0 }),
+        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth.into(), encoding: 0, disparity_step: 0.0 }),
         labels: Some(v1::LabelImage { width: w, height: h, instance_ids: ids.into(), instances }),
         ..Default::default()
     }

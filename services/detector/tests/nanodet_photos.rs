@@ -134,8 +134,13 @@ async fn motorcycle_depth_from_the_stereo_ground_truth() {
         depth_m.iter().flat_map(|&z| ((z * 1000.0).round().clamp(0.0, 65535.0) as u16).to_le_bytes()).collect();
 
     let mut frame = photo_frame("motorcycle_left.png");
-    frame.depth =
-        Some(v1::DepthImage { width: w as u32, height: h as u32, data_mm: depth_mm.clone().into(), encoding: 0 });
+    frame.depth = Some(v1::DepthImage {
+        width: w as u32,
+        height: h as u32,
+        data_mm: depth_mm.clone().into(),
+        encoding: 0,
+        disparity_step: 0.0,
+    });
     let mut svc = start(nanodet_options()).await;
     let boxes = svc.client.detect(request(frame, vec![MOTORCYCLE], 0.3)).await.unwrap().into_inner().boxes;
     svc.stop().await.unwrap();

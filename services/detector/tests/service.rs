@@ -42,7 +42,7 @@ fn labelled_frame(seq: u64) -> v1::RgbdFrame {
         robot_id: "husky-1".into(),
         seq,
         stamp: seq as f64 * 0.2,
-        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth.into(), encoding: 0 }),
+        depth: Some(v1::DepthImage { width: w, height: h, data_mm: depth.into(), encoding: 0, disparity_step: 0.0 }),
         labels: Some(v1::LabelImage {
             width: w,
             height: h,

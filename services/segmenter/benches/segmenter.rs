@@ -79,6 +79,7 @@ fn service(c: &mut Criterion) {
             height: H,
             data_mm: depth.iter().flat_map(|d| d.to_le_bytes()).collect(),
             encoding: 0,
+            disparity_step: 0.0,
         }),
         ..Default::default()
     };

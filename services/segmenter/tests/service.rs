@@ -125,7 +125,7 @@ fn frame(rgb: Vec<u8>, depth: Vec<u8>) -> RgbdFrame {
             depth_max_m: 12.0,
         })),
         rgb: Some(Image { width: W, height: H, encoding: ImageEncoding::Rgb8 as i32, data: rgb.into() }),
-        depth: Some(DepthImage { width: W, height: H, data_mm: depth.into(), encoding: 0 }),
+        depth: Some(DepthImage { width: W, height: H, data_mm: depth.into(), encoding: 0, disparity_step: 0.0 }),
         ..Default::default()
     }
 }

@@ -44,6 +44,9 @@ pub struct TrialSettings {
     pub stall_timeout_s: f64,
     /// Per-trial world files are written here (and removed after the trial).
     pub work_dir: PathBuf,
+    /// How the trial robots send their images (raw unless the run measures
+    /// a compressed link).
+    pub codecs: vlnav_edge_agent::Codecs,
 }
 
 /// A scenario's world, loaded once: the file's text (rewritten per trial
@@ -425,6 +428,10 @@ async fn run_mission(
         width: Some(settings.camera_width),
         height: Some(settings.camera_height),
         liveness_timeout_s: settings.stall_timeout_s,
+        colour_codec: settings.codecs.colour,
+        jpeg_quality: settings.codecs.jpeg_quality,
+        depth_codec: settings.codecs.depth,
+        disparity_step: settings.codecs.disparity_step,
         tls: match &settings.pki {
             Some(pki) => {
                 pki.ensure_robot(robot_id)?;

@@ -23,7 +23,9 @@ use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
 use vlnav_edge_agent::replay::Recorded;
-use vlnav_edge_agent::{ColourCodec, DEFAULT_JPEG_QUALITY, DepthCodec, EdgeOptions, Hooks, LinkEvent};
+use vlnav_edge_agent::{
+    ColourCodec, DEFAULT_DISPARITY_STEP, DEFAULT_JPEG_QUALITY, DepthCodec, EdgeOptions, Hooks, LinkEvent,
+};
 use vlnav_gateway::auth::{Role, TokenEntry, TokenFile};
 use vlnav_proto::v1::{
     GetMissionRequest, ListRobotsRequest, MissionState, SubmitMissionRequest, WatchMissionRequest,
@@ -46,6 +48,13 @@ fn colour_name(codec: ColourCodec, quality: u8) -> String {
     match codec {
         ColourCodec::Raw => "raw".into(),
         ColourCodec::Jpeg => format!("jpeg q{quality}"),
+    }
+}
+
+fn depth_name(codec: DepthCodec, step: f32) -> String {
+    match codec {
+        DepthCodec::Disparity => format!("disparity {step}/m"),
+        other => other.as_str().into(),
     }
 }
 
@@ -112,6 +121,10 @@ pub struct FleetArgs {
     /// How the robots send depth (the edge agent's --depth-codec).
     #[arg(long, value_enum, default_value_t = DepthCodec::Raw)]
     pub depth_codec: DepthCodec,
+    /// Disparity step of --depth-codec disparity, 1/m (the edge agent's
+    /// --disparity-step).
+    #[arg(long, default_value_t = DEFAULT_DISPARITY_STEP)]
+    pub disparity_step: f32,
     /// How the robots send colour (the edge agent's --colour-codec).
     #[arg(long, alias = "color-codec", value_enum, default_value_t = ColourCodec::Raw)]
     pub colour_codec: ColourCodec,
@@ -201,6 +214,8 @@ pub struct RobotsArgs {
     pub scenario: String,
     #[arg(long, value_enum)]
     pub depth_codec: DepthCodec,
+    #[arg(long, default_value_t = DEFAULT_DISPARITY_STEP)]
+    pub disparity_step: f32,
     #[arg(long, value_enum, default_value_t = ColourCodec::Raw)]
     pub colour_codec: ColourCodec,
     #[arg(long, default_value_t = DEFAULT_JPEG_QUALITY, value_parser = clap::value_parser!(u8).range(1..=100))]
@@ -635,6 +650,7 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
         colour: args.colour_codec,
         jpeg_quality: args.jpeg_quality,
         depth: args.depth_codec,
+        disparity_step: args.disparity_step,
     };
     let (recorded, load) = match &args.replay {
         Some(file) => {
@@ -666,6 +682,7 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
             width: Some(args.width),
             height: Some(args.height),
             depth_codec: args.depth_codec,
+            disparity_step: args.disparity_step,
             colour_codec: args.colour_codec,
             jpeg_quality: args.jpeg_quality,
             ..EdgeOptions::default()
@@ -905,6 +922,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         .args(["--frame-rate", &args.frame_rate.to_string(), "--scenario", &args.scenario])
         .args(["--depth-codec", args.depth_codec.as_str(), "--colour-codec", args.colour_codec.as_str()])
         .args(["--jpeg-quality", &args.jpeg_quality.to_string()])
+        .args(["--disparity-step", &args.disparity_step.to_string()])
         .args(["--replay-frames", &args.replay_frames.to_string()])
         .args(["--phases", args.phases.as_str()])
         .stdin(std::process::Stdio::piped())
@@ -1002,7 +1020,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             frame_rate: args.frame_rate,
             load: robots.load.clone(),
             phases: args.phases.as_str().into(),
-            depth_codec: args.depth_codec.as_str().into(),
+            depth_codec: depth_name(args.depth_codec, args.disparity_step),
             colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
             uplink_mbit_s_per_robot: mbit_s_per_robot(robots.frame_bytes, n, robots.seconds),
             image_mbit_s_per_robot: mbit_s_per_robot(robots.image_bytes, n, robots.seconds),
@@ -1101,7 +1119,7 @@ pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::R
                 height: args.height,
                 frame_rate: args.frame_rate,
                 phases: args.phases.as_str().into(),
-                depth_codec: args.depth_codec.as_str().into(),
+                depth_codec: depth_name(args.depth_codec, args.disparity_step),
                 colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
                 error: Some(format!("{e:#}")),
                 ..Default::default()
