@@ -230,7 +230,7 @@ pub struct EdgeOptions {
     #[arg(long, env = "VLNAV_EDGE_DISPARITY_STEP", default_value_t = DEFAULT_DISPARITY_STEP)]
     pub disparity_step: f32,
     /// How colour is sent: `raw` RGB8, or `jpeg` (lossy, encoded here at
-    /// --jpeg-quality in 15–18 ms a 640×480 frame: under a tenth of the bytes
+    /// --jpeg-quality in 3–5 ms a 640×480 frame: under a tenth of the bytes
     /// at 85, for a link whose bandwidth is the limit; it costs the detector
     /// marginal boxes and the segmenter thin cables, docs/architecture.md,
     /// "Frames").

@@ -149,8 +149,12 @@ fn check_rgb8(width: u32, height: u32, len: usize) -> Result<(), ImageError> {
     Ok(())
 }
 
-/// Encodes row-major 8-bit RGB of `width`×`height` as a baseline JPEG
-/// (4:4:4, no chroma subsampling) at `quality`, 1–100 on libjpeg's scale.
+/// Encodes row-major 8-bit RGB of `width`×`height` as a baseline JPEG at
+/// `quality`, 1–100 on libjpeg's scale, with full chroma (4:4:4), by the
+/// `jpeg-encoder` crate with AVX2 where the CPU has it. Halving the chroma
+/// (4:2:0, libjpeg's default below 90) saved 17 % of the bytes at 85 but
+/// lost the segmenter a fifth of the lab's cable pixels and NanoDet 4 % of
+/// its detections (`vlnav bench jpeg`; docs/architecture.md, "Frames").
 /// The size is checked first, as [`decode`] checks it: the encoder itself
 /// would panic on a buffer of the wrong length.
 pub fn encode_jpeg(width: u32, height: u32, rgb: &[u8], quality: u8) -> Result<Vec<u8>, EncodeError> {
@@ -162,8 +166,11 @@ pub fn encode_jpeg(width: u32, height: u32, rgb: &[u8], quality: u8) -> Result<V
     }
     check_rgb8(width, height, rgb.len()).map_err(EncodeError::Size)?;
     let mut out = Vec::with_capacity(rgb.len() / 10);
-    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut out, quality)
-        .encode(rgb, width, height, image::ExtendedColorType::Rgb8)
+    // The sides fit: both are at most MAX_SIDE (checked above).
+    let mut encoder = jpeg_encoder::Encoder::new(&mut out, quality);
+    encoder.set_sampling_factor(jpeg_encoder::SamplingFactor::F_1_1);
+    encoder
+        .encode(rgb, width as u16, height as u16, jpeg_encoder::ColorType::Rgb)
         .map_err(|e| EncodeError::Encoder(e.to_string()))?;
     Ok(out)
 }
