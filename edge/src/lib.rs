@@ -144,15 +144,59 @@ pub const DEFAULT_DISPARITY_STEP: f32 = vlnav_geometry::disparity::D455_STEP_PER
 pub const DEFAULT_JPEG_QUALITY: u8 = 85;
 
 /// How a frame's images are sent up: `--colour-codec` at `--jpeg-quality`,
-/// and `--depth-codec` at `--disparity-step`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// and `--depth-codec` at `--disparity-step`. Also the link flags of the
+/// tools that drive simulated robots through this crate (`vlnav bench
+/// fleet`, `vlnav eval`): the edge agent's own flags ([`EdgeOptions`])
+/// without its `VLNAV_EDGE_*` variables, which configure an agent, not a
+/// benchmark.
+#[derive(clap::Args, Clone, Copy, Debug, PartialEq)]
 pub struct Codecs {
+    /// How the robots send colour (the edge agent's --colour-codec).
+    #[arg(long = "colour-codec", alias = "color-codec", value_name = "COLOUR_CODEC", value_enum, default_value_t = ColourCodec::Raw)]
     pub colour: ColourCodec,
-    /// 1–100 (libjpeg's scale); read only with [`ColourCodec::Jpeg`].
+    /// JPEG quality of --colour-codec jpeg, 1–100 (the edge agent's --jpeg-quality).
+    #[arg(long = "jpeg-quality", default_value_t = DEFAULT_JPEG_QUALITY,
+          value_parser = clap::value_parser!(u8).range(1..=100))]
     pub jpeg_quality: u8,
+    /// How the robots send depth (the edge agent's --depth-codec).
+    #[arg(long = "depth-codec", value_name = "DEPTH_CODEC", value_enum, default_value_t = DepthCodec::Raw)]
     pub depth: DepthCodec,
-    /// Disparity step, 1/m; read only with [`DepthCodec::Disparity`].
+    /// Disparity step of --depth-codec disparity, 1/m (the edge agent's --disparity-step).
+    #[arg(long = "disparity-step", default_value_t = DEFAULT_DISPARITY_STEP)]
     pub disparity_step: f32,
+}
+
+impl Codecs {
+    /// The colour codec as reports name it: `raw`, `jpeg q85`.
+    pub fn colour_name(&self) -> String {
+        match self.colour {
+            ColourCodec::Raw => "raw".into(),
+            ColourCodec::Jpeg => format!("jpeg q{}", self.jpeg_quality),
+        }
+    }
+
+    /// The depth codec as reports name it: `raw`, `rvl`, `disparity 0.005/m`.
+    pub fn depth_name(&self) -> String {
+        match self.depth {
+            DepthCodec::Disparity => format!("disparity {}/m", self.disparity_step),
+            other => other.as_str().into(),
+        }
+    }
+
+    /// The flags that give these codecs to the edge agent, or to a tool that
+    /// takes them (`vlnav bench robots`).
+    pub fn to_flags(&self) -> Vec<String> {
+        vec![
+            "--colour-codec".into(),
+            self.colour.as_str().into(),
+            "--jpeg-quality".into(),
+            self.jpeg_quality.to_string(),
+            "--depth-codec".into(),
+            self.depth.as_str().into(),
+            "--disparity-step".into(),
+            self.disparity_step.to_string(),
+        ]
+    }
 }
 
 impl Default for Codecs {
@@ -404,6 +448,17 @@ impl EdgeOptions {
         }
     }
 
+    /// Sends a frame's images with `codecs` (a tool's [`Codecs`] flags).
+    pub fn with_codecs(self, codecs: Codecs) -> Self {
+        Self {
+            colour_codec: codecs.colour,
+            jpeg_quality: codecs.jpeg_quality,
+            depth_codec: codecs.depth,
+            disparity_step: codecs.disparity_step,
+            ..self
+        }
+    }
+
     /// The topics of the ROS driver, each flag left out taking the driver's default.
     pub fn ros_topics(&self) -> RosTopics {
         let ros2 = self.driver == DriverKind::Ros2;
@@ -608,6 +663,32 @@ mod tests {
         assert!(disparity.validate().is_ok());
         assert_eq!(parse(&["--color-codec", "jpeg"]).unwrap().colour_codec, ColourCodec::Jpeg);
         assert!(jpeg.validate().is_ok());
+    }
+
+    #[derive(Parser, Debug)]
+    struct LinkCli {
+        #[command(flatten)]
+        link: Codecs,
+    }
+
+    #[test]
+    fn a_tools_link_flags_are_the_agents_and_go_back_to_flags_and_names() {
+        let parse_link = |args: &[&str]| {
+            LinkCli::try_parse_from(std::iter::once("tool").chain(args.iter().copied())).map(|c| c.link)
+        };
+        assert_eq!(parse_link(&[]).unwrap(), Codecs::default());
+        let args =
+            ["--color-codec", "jpeg", "--jpeg-quality", "70", "--depth-codec", "disparity", "--disparity-step", "0.01"];
+        let link = parse_link(&args).unwrap();
+        assert_eq!(link, parse(&args).unwrap().codecs(), "the same flags as the edge agent's");
+        let flags = link.to_flags();
+        let round: Vec<&str> = flags.iter().map(String::as_str).collect();
+        assert_eq!(parse_link(&round).unwrap(), link, "{flags:?}");
+        assert_eq!(parse(&round).unwrap().codecs(), link, "an edge agent takes them too");
+        assert_eq!((link.colour_name(), link.depth_name()), ("jpeg q70".to_string(), "disparity 0.01/m".to_string()));
+        assert_eq!((Codecs::default().colour_name(), Codecs::default().depth_name()), ("raw".into(), "raw".into()));
+        assert_eq!(EdgeOptions::default().with_codecs(link).codecs(), link);
+        assert!(parse_link(&["--jpeg-quality", "0"]).is_err());
     }
 
     #[test]

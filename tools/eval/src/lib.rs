@@ -38,7 +38,7 @@ use std::time::Instant;
 use anyhow::Context;
 use futures::StreamExt;
 
-use vlnav_edge_agent::{Codecs, ColourCodec, DEFAULT_DISPARITY_STEP, DEFAULT_JPEG_QUALITY, DepthCodec};
+use vlnav_edge_agent::{Codecs, ColourCodec, DepthCodec};
 pub use vlnav_runtime::perception::PerceptionMode;
 
 use crate::aggregate::Summary;
@@ -107,43 +107,22 @@ pub struct EvalArgs {
     /// example an `--perception oracle` run, the upper bound.
     #[arg(long, env = "VLNAV_EVAL_BESIDE")]
     pub beside: Option<PathBuf>,
-    /// How the trial robots send colour (the edge agent's --colour-codec):
-    /// the evaluation over a compressed link.
-    #[arg(long, alias = "color-codec", value_enum, default_value_t = ColourCodec::Raw)]
-    pub colour_codec: ColourCodec,
-    /// JPEG quality of --colour-codec jpeg.
-    #[arg(long, default_value_t = DEFAULT_JPEG_QUALITY, value_parser = clap::value_parser!(u8).range(1..=100))]
-    pub jpeg_quality: u8,
-    /// How the trial robots send depth (the edge agent's --depth-codec).
-    #[arg(long, value_enum, default_value_t = DepthCodec::Raw)]
-    pub depth_codec: DepthCodec,
-    /// Disparity step of --depth-codec disparity, 1/m.
-    #[arg(long, default_value_t = DEFAULT_DISPARITY_STEP)]
-    pub disparity_step: f32,
+    /// How the trial robots send their images: the evaluation over a
+    /// compressed link.
+    #[command(flatten)]
+    pub link: Codecs,
 }
 
 impl EvalArgs {
-    /// How the trial robots send their images.
-    pub fn codecs(&self) -> Codecs {
-        Codecs {
-            colour: self.colour_codec,
-            jpeg_quality: self.jpeg_quality,
-            depth: self.depth_codec,
-            disparity_step: self.disparity_step,
-        }
-    }
-
     /// The perception as the report names it, with the robot link's codecs
     /// when they are not raw.
     fn perception_label(&self) -> String {
         let mut parts = Vec::new();
-        if self.colour_codec == ColourCodec::Jpeg {
-            parts.push(format!("jpeg q{} colour", self.jpeg_quality));
+        if self.link.colour != ColourCodec::Raw {
+            parts.push(format!("{} colour", self.link.colour_name()));
         }
-        match self.depth_codec {
-            DepthCodec::Raw => {}
-            DepthCodec::Disparity => parts.push(format!("disparity {}/m depth", self.disparity_step)),
-            other => parts.push(format!("{} depth", other.as_str())),
+        if self.link.depth != DepthCodec::Raw {
+            parts.push(format!("{} depth", self.link.depth_name()));
         }
         if parts.is_empty() {
             self.perception.as_str().to_string()
@@ -172,10 +151,7 @@ impl Default for EvalArgs {
             no_progress: false,
             perception: PerceptionMode::Realistic,
             beside: None,
-            colour_codec: ColourCodec::Raw,
-            jpeg_quality: DEFAULT_JPEG_QUALITY,
-            depth_codec: DepthCodec::Raw,
-            disparity_step: DEFAULT_DISPARITY_STEP,
+            link: Codecs::default(),
         }
     }
 }
@@ -285,7 +261,7 @@ pub async fn run_eval(args: EvalArgs, target: Target) -> anyhow::Result<EvalRepo
         frame_rate_hz: args.frame_rate,
         stall_timeout_s: args.stall_timeout_s,
         work_dir: args.out.join("worlds"),
-        codecs: args.codecs(),
+        codecs: args.link,
     };
     let refs = ScenarioRef::from_suite(&suite);
     let family_of: std::collections::BTreeMap<String, String> =
@@ -421,7 +397,7 @@ mod tests {
     #[test]
     fn the_robot_link_is_raw_unless_asked_and_a_compressed_one_is_named_in_the_report() {
         let cli = Cli::try_parse_from(["vlnav-eval"]).unwrap();
-        assert_eq!(cli.eval.codecs(), Codecs::default());
+        assert_eq!(cli.eval.link, Codecs::default());
         assert_eq!(cli.eval.perception_label(), "realistic", "a raw link leaves the report as it was");
         let cli = Cli::try_parse_from([
             "vlnav-eval",
@@ -434,7 +410,7 @@ mod tests {
         ])
         .unwrap();
         assert_eq!(
-            cli.eval.codecs(),
+            cli.eval.link,
             Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 85, depth: DepthCodec::Disparity, disparity_step: 0.01 }
         );
         assert_eq!(cli.eval.perception_label(), "realistic, robot link: jpeg q85 colour, disparity 0.01/m depth");

@@ -428,10 +428,6 @@ async fn run_mission(
         width: Some(settings.camera_width),
         height: Some(settings.camera_height),
         liveness_timeout_s: settings.stall_timeout_s,
-        colour_codec: settings.codecs.colour,
-        jpeg_quality: settings.codecs.jpeg_quality,
-        depth_codec: settings.codecs.depth,
-        disparity_step: settings.codecs.disparity_step,
         tls: match &settings.pki {
             Some(pki) => {
                 pki.ensure_robot(robot_id)?;
@@ -440,7 +436,8 @@ async fn run_mission(
             None => Default::default(),
         },
         ..EdgeOptions::default()
-    };
+    }
+    .with_codecs(settings.codecs);
     let (tx, mut rx) = mpsc::unbounded_channel();
     let shutdown = CancellationToken::new();
     // The robot waits after its first (idle) frame until the mission is in

@@ -23,9 +23,7 @@ use serde::{Deserialize, Serialize};
 use tokio::io::{AsyncBufReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
 use vlnav_edge_agent::replay::Recorded;
-use vlnav_edge_agent::{
-    ColourCodec, DEFAULT_DISPARITY_STEP, DEFAULT_JPEG_QUALITY, DepthCodec, EdgeOptions, Hooks, LinkEvent,
-};
+use vlnav_edge_agent::{Codecs, EdgeOptions, Hooks, LinkEvent};
 use vlnav_gateway::auth::{Role, TokenEntry, TokenFile};
 use vlnav_proto::v1::{
     GetMissionRequest, ListRobotsRequest, MissionState, SubmitMissionRequest, WatchMissionRequest,
@@ -44,20 +42,6 @@ use crate::up::{StackSecurity, UpArgs, up};
 pub const MISSIONS: [&str; 3] = [crate::CASE_2, "go back 3 m", "take a right turn and move 2 m ahead"];
 
 /// The colour codec as reports name it: `raw`, or `jpeg` with its quality.
-fn colour_name(codec: ColourCodec, quality: u8) -> String {
-    match codec {
-        ColourCodec::Raw => "raw".into(),
-        ColourCodec::Jpeg => format!("jpeg q{quality}"),
-    }
-}
-
-fn depth_name(codec: DepthCodec, step: f32) -> String {
-    match codec {
-        DepthCodec::Disparity => format!("disparity {step}/m"),
-        other => other.as_str().into(),
-    }
-}
-
 /// Megabits per second per robot of `bytes` sent by `robots` in `seconds`.
 fn mbit_s_per_robot(bytes: u64, robots: usize, seconds: f64) -> f64 {
     if robots == 0 || seconds <= 0.0 { 0.0 } else { bytes as f64 * 8.0 / 1e6 / seconds / robots as f64 }
@@ -118,19 +102,8 @@ pub struct FleetArgs {
     /// World of every robot (each robot has its own copy).
     #[arg(long, default_value = "demo")]
     pub scenario: String,
-    /// How the robots send depth (the edge agent's --depth-codec).
-    #[arg(long, value_enum, default_value_t = DepthCodec::Raw)]
-    pub depth_codec: DepthCodec,
-    /// Disparity step of --depth-codec disparity, 1/m (the edge agent's
-    /// --disparity-step).
-    #[arg(long, default_value_t = DEFAULT_DISPARITY_STEP)]
-    pub disparity_step: f32,
-    /// How the robots send colour (the edge agent's --colour-codec).
-    #[arg(long, alias = "color-codec", value_enum, default_value_t = ColourCodec::Raw)]
-    pub colour_codec: ColourCodec,
-    /// JPEG quality of --colour-codec jpeg (the edge agent's --jpeg-quality).
-    #[arg(long, default_value_t = DEFAULT_JPEG_QUALITY, value_parser = clap::value_parser!(u8).range(1..=100))]
-    pub jpeg_quality: u8,
+    #[command(flatten)]
+    pub link: Codecs,
     /// While measuring, a client floods SubmitMission from 16 concurrent
     /// calls with its own token.
     #[arg(long)]
@@ -212,14 +185,8 @@ pub struct RobotsArgs {
     pub frame_rate: f64,
     #[arg(long)]
     pub scenario: String,
-    #[arg(long, value_enum)]
-    pub depth_codec: DepthCodec,
-    #[arg(long, default_value_t = DEFAULT_DISPARITY_STEP)]
-    pub disparity_step: f32,
-    #[arg(long, value_enum, default_value_t = ColourCodec::Raw)]
-    pub colour_codec: ColourCodec,
-    #[arg(long, default_value_t = DEFAULT_JPEG_QUALITY, value_parser = clap::value_parser!(u8).range(1..=100))]
-    pub jpeg_quality: u8,
+    #[command(flatten)]
+    pub link: Codecs,
     #[arg(long)]
     pub replay: Option<PathBuf>,
     #[arg(long, default_value_t = 100)]
@@ -646,12 +613,7 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
         Some(dir) => Some(DevPki::ensure(dir, &[])?),
         None => None,
     };
-    let codecs = vlnav_edge_agent::Codecs {
-        colour: args.colour_codec,
-        jpeg_quality: args.jpeg_quality,
-        depth: args.depth_codec,
-        disparity_step: args.disparity_step,
-    };
+    let codecs = args.link;
     let (recorded, load) = match &args.replay {
         Some(file) => {
             let frames = crate::replay::read_frames(file, args.replay_frames.try_into().unwrap_or(usize::MAX))?;
@@ -681,12 +643,9 @@ pub async fn robots(args: &RobotsArgs) -> anyhow::Result<()> {
             frame_rate: args.frame_rate,
             width: Some(args.width),
             height: Some(args.height),
-            depth_codec: args.depth_codec,
-            disparity_step: args.disparity_step,
-            colour_codec: args.colour_codec,
-            jpeg_quality: args.jpeg_quality,
             ..EdgeOptions::default()
-        };
+        }
+        .with_codecs(codecs);
         if let Some(pki) = &pki {
             opts.tls = pki.client_args(Some((pki.robot_cert(&id), pki.robot_key(&id))));
         }
@@ -920,9 +879,7 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
         .args(["bench", "robots", "--gateway", &uri, "--robots", &n.to_string()])
         .args(["--width", &args.width.to_string(), "--height", &args.height.to_string()])
         .args(["--frame-rate", &args.frame_rate.to_string(), "--scenario", &args.scenario])
-        .args(["--depth-codec", args.depth_codec.as_str(), "--colour-codec", args.colour_codec.as_str()])
-        .args(["--jpeg-quality", &args.jpeg_quality.to_string()])
-        .args(["--disparity-step", &args.disparity_step.to_string()])
+        .args(args.link.to_flags())
         .args(["--replay-frames", &args.replay_frames.to_string()])
         .args(["--phases", args.phases.as_str()])
         .stdin(std::process::Stdio::piped())
@@ -1020,8 +977,8 @@ pub async fn fleet_run(args: &FleetArgs, n: usize) -> anyhow::Result<FleetReport
             frame_rate: args.frame_rate,
             load: robots.load.clone(),
             phases: args.phases.as_str().into(),
-            depth_codec: depth_name(args.depth_codec, args.disparity_step),
-            colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
+            depth_codec: args.link.depth_name(),
+            colour_codec: args.link.colour_name(),
             uplink_mbit_s_per_robot: mbit_s_per_robot(robots.frame_bytes, n, robots.seconds),
             image_mbit_s_per_robot: mbit_s_per_robot(robots.image_bytes, n, robots.seconds),
             achieved_frame_rate: robots.frames_sent as f64 / (n as f64 * robots.seconds.max(1e-9)),
@@ -1119,8 +1076,8 @@ pub async fn fleet(args: &FleetArgs, out: &mut impl std::io::Write) -> anyhow::R
                 height: args.height,
                 frame_rate: args.frame_rate,
                 phases: args.phases.as_str().into(),
-                depth_codec: depth_name(args.depth_codec, args.disparity_step),
-                colour_codec: colour_name(args.colour_codec, args.jpeg_quality),
+                depth_codec: args.link.depth_name(),
+                colour_codec: args.link.colour_name(),
                 error: Some(format!("{e:#}")),
                 ..Default::default()
             },
@@ -1352,8 +1309,6 @@ mod tests {
         assert!((mbit_s_per_robot(2 * 10 * 125_000 * 30, 2, 30.0) - 10.0).abs() < 1e-9);
         assert_eq!(mbit_s_per_robot(1000, 0, 1.0), 0.0);
         assert_eq!(mbit_s_per_robot(1000, 1, 0.0), 0.0);
-        assert_eq!(colour_name(ColourCodec::Jpeg, 85), "jpeg q85");
-        assert_eq!(colour_name(ColourCodec::Raw, 85), "raw");
     }
 
     #[test]
