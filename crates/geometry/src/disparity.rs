@@ -172,8 +172,8 @@ pub fn decode(data: &[u8], width: usize, height: usize, step_per_m: f32) -> Resu
     let mut at = 0;
     while q.len() < pixels {
         let i = q.len();
-        let truncated = DisparityError::Truncated { decoded: i, expected: pixels };
-        let b = *bytes.get(at).ok_or(truncated.clone())?;
+        let truncated = || DisparityError::Truncated { decoded: i, expected: pixels };
+        let b = *bytes.get(at).ok_or_else(truncated)?;
         at += 1;
         if b == HOLE {
             q.push(0);
@@ -181,7 +181,7 @@ pub fn decode(data: &[u8], width: usize, height: usize, step_per_m: f32) -> Resu
             continue;
         }
         let z = if b == ESCAPE {
-            let four = bytes.get(at..at + 4).ok_or(truncated)?;
+            let four = bytes.get(at..at + 4).ok_or_else(truncated)?;
             at += 4;
             u32::from_le_bytes(four.try_into().expect("four bytes"))
         } else {
