@@ -197,6 +197,7 @@ impl Stages<'_> {
                     distance_to_goal: plan.distance_to_goal,
                     heading_error: plan.heading_error,
                     free_paths: plan.free_paths,
+                    frontier: plan.frontier.iter().map(|f| [f.x, f.y]).collect(),
                 };
                 Ok(Reply::Driven { answer, path: plan.path.iter().map(|p| [p.x, p.y]).collect() })
             }

@@ -104,7 +104,7 @@ impl Seen {
                 self.fused_target = estimate.fused_target.map(|p| [p.x, p.y, p.z]);
             }
             machine::Reply::Driven { answer, path } => {
-                self.drive = Some(*answer);
+                self.drive = Some(answer.clone());
                 self.path = path.clone();
             }
             _ => {}

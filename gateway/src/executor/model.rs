@@ -154,7 +154,7 @@ pub(crate) struct Obstacles {
 }
 
 /// The local planner's answer for one control step.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub(crate) struct DriveAnswer {
     pub(crate) status: DriveStatus,
     pub(crate) cmd: Twist,
@@ -162,6 +162,10 @@ pub(crate) struct DriveAnswer {
     pub(crate) distance_to_goal: f64,
     pub(crate) heading_error: f64,
     pub(crate) free_paths: u32,
+    /// The nearest edges of the space the depth has not seen, `odom` (x, y),
+    /// nearest first, where the local planner keeps them
+    /// (`--local-planner-frontier`).
+    pub(crate) frontier: Vec<[f64; 2]>,
 }
 
 /// A question for the user.

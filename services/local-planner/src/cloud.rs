@@ -201,6 +201,26 @@ impl SeenRange {
         })
     }
 
+    /// The camera's position in `base_link` (x, y), m.
+    pub fn origin(&self) -> Vector2<f64> {
+        self.origin
+    }
+
+    /// Every bearing the frame measured, in bin order: (bearing from the
+    /// camera in `base_link`, rad; how far it saw free, m; where a blocking
+    /// point ended it, m, if one did within what it measured). What the
+    /// frontier search (`control/frontier.rs`) marks seen.
+    pub fn rays(&self) -> impl Iterator<Item = (f64, f64, Option<f64>)> + '_ {
+        let step = std::f64::consts::TAU / Self::BINS as f64;
+        self.range.iter().zip(&self.nearest_obstacle).enumerate().filter(|(_, (r, _))| **r > 0.0).map(
+            move |(k, (&r, &o))| {
+                let bearing = -std::f64::consts::PI + (k as f64 + 0.5) * step;
+                let blocked = (o <= r).then_some(f64::from(o));
+                (bearing, f64::from(r.min(o)), blocked)
+            },
+        )
+    }
+
     /// Whether the frame saw as far as `p` (`base_link`) along its bearing,
     /// within `margin` m.
     pub fn reaches(&self, p: &Vector2<f64>, margin: f64) -> bool {

@@ -133,6 +133,7 @@ fn reply_to_proto(r: StepReply) -> pb::PlanStepResponse {
         heading_error: o.heading_error,
         obstacle_points: r.obstacle_cells as u32,
         free_paths: o.free_paths as u32,
+        frontier: o.frontier.iter().map(|f| pb::Point3 { x: f.x, y: f.y, z: 0.0 }).collect(),
         path: o
             .selection
             .as_ref()

@@ -98,6 +98,13 @@ pub struct Options {
     /// improves the generated development set beyond its interval.
     #[arg(long = "local-planner-detour", env = "VLNAV_LOCAL_PLANNER_DETOUR")]
     pub detour: bool,
+    /// Keep what the depth has seen lately and report each frame the
+    /// nearest edges of the space it has not seen; a FIND whose search legs
+    /// are spent drives on toward one (docs/design.md §4, "Frontier"). Off
+    /// by default until it improves the generated development set beyond
+    /// its interval.
+    #[arg(long = "local-planner-frontier", env = "VLNAV_LOCAL_PLANNER_FRONTIER")]
+    pub frontier: bool,
     /// A step that is stuck with nobody near plans the next 2.5 m through
     /// narrow passages: doors down to about 0.85 m, slowly, with 10.5 MB
     /// more lookup tables (docs/design.md §4, "Narrow passages"). Off by
@@ -131,6 +138,7 @@ impl Default for Options {
             depth_max_m: 10.0,
             progress_window_s: 5.0,
             detour: false,
+            frontier: false,
             narrow: false,
         }
     }
@@ -202,6 +210,7 @@ impl Options {
             yaw_decel: self.yaw_decel,
             progress_window_s: self.progress_window_s,
             detour: self.detour,
+            frontier: self.frontier,
             narrow: self.narrow,
             ..FollowParams::default()
         }

@@ -5,13 +5,26 @@
 use nalgebra::Vector3;
 use vlnav_geometry::wrap_angle as wrap;
 
-use super::{Mission, MoveQuery, Next, Pending, Request, bearing};
+use super::{FindRun, Mission, MoveQuery, Next, Pending, Request, bearing};
 use crate::config::ExecutorParams;
 use crate::executor::model::*;
 
 /// A search leg toward a lead closer than this (beyond the stopping
 /// distance) goes straight ahead instead, m.
 const LEAD_MIN_M: f64 = 0.5;
+
+/// Legs toward frontiers after the search legs are spent, at most.
+const FRONTIER_LEGS: u32 = 2;
+/// A search leg toward a frontier goes at most this far, m.
+const FRONTIER_LEG_MAX_M: f64 = 8.0;
+/// A search leg stops this much short of the frontier it drives to (the
+/// edge's cell lies beside what casts its shadow; from there the camera
+/// already sees into it), m.
+const FRONTIER_SHORT_M: f64 = 0.75;
+/// Frontiers farther off the search's heading than this are not searched, rad.
+const FRONTIER_AHEAD_RAD: f64 = std::f64::consts::FRAC_PI_2;
+/// What turning off the search's heading costs a frontier, m per quarter turn.
+const FRONTIER_TURN_COST_M: f64 = 4.0;
 
 /// Sensor seconds one scan turn of exploration may take before looking anyway.
 const SCAN_TURN_LIMIT_S: f64 = 4.0;
@@ -44,6 +57,34 @@ pub(crate) fn search_leg(pose: Pose2, lead: Option<&Vector3<f64>>, d_s: f64, p: 
     }
     let f_dist = (room / 2.0).max(p.search_leg_m).min(room);
     MoveQuery { anchor: pose, f_dist, yaw: wrap(bearing(pose, t) - pose.theta), d_s: 0.0 }
+}
+
+/// One search leg from `pose` with no lead, toward one of `frontier`
+/// (`odom`, the nearest edges of what the depth has not seen, from the
+/// local planner; `control/frontier.rs` there): a target hidden behind
+/// pillars, furniture or a door frame is in the space the robot has not
+/// looked at. The search's heading (`pose.theta`, the route's course) still
+/// says where the target most likely is, so of the edges within
+/// `FRONTIER_AHEAD_RAD` of it the one nearest counting `FRONTIER_TURN_COST_M`
+/// per quarter turn off it; toward it, facing it, up to `FRONTIER_SHORT_M`
+/// short of it and at most `FRONTIER_LEG_MAX_M`. `None` where no edge is
+/// ahead, or the one chosen is nearer than the least lead worth driving
+/// (`LEAD_MIN_M`).
+pub(crate) fn frontier_leg(pose: Pose2, frontier: &[[f64; 2]]) -> Option<MoveQuery> {
+    let off = |[x, y]: &[f64; 2]| wrap((y - pose.y).atan2(x - pose.x) - pose.theta).abs();
+    let cost = |e: &[f64; 2]| (e[0] - pose.x).hypot(e[1] - pose.y) + FRONTIER_TURN_COST_M * off(e) / FRONTIER_AHEAD_RAD;
+    let [x, y] = frontier.iter().filter(|e| off(e) <= FRONTIER_AHEAD_RAD).min_by(|a, b| cost(a).total_cmp(&cost(b)))?;
+    let room = (x - pose.x).hypot(y - pose.y) - FRONTIER_SHORT_M;
+    if room < LEAD_MIN_M {
+        return None;
+    }
+    let heading = (y - pose.y).atan2(x - pose.x);
+    Some(MoveQuery {
+        anchor: Pose2::new(pose.x, pose.y, heading),
+        f_dist: room.min(FRONTIER_LEG_MAX_M),
+        yaw: 0.0,
+        d_s: 0.0,
+    })
 }
 
 /// Bounded exploration schedule: a look-around of `scan_turns` turns, then
@@ -93,10 +134,12 @@ pub(super) enum Explore {
         leg: u32,
         origin: Pose2,
     },
+    /// `length`: the leg's length, m (what its time limit allows for).
     Search {
         goal: Goal,
         leg: u32,
         since: f64,
+        length: f64,
     },
 }
 
@@ -107,10 +150,11 @@ pub(super) enum ExploreGoalFor {
     Scan { leg: u32, origin: Pose2, announce: bool },
     /// Turn `turn` of the look-around that began at `origin`.
     NextTurn { turn: u32, leg: u32, origin: Pose2 },
-    /// Search leg number `leg`.
-    SearchLeg { leg: u32 },
-    /// The leg toward where an earlier step saw the target's class.
-    Revisit,
+    /// Search leg number `leg`, `length` m long.
+    SearchLeg { leg: u32, length: f64 },
+    /// The leg toward where an earlier step saw the target's class; its
+    /// time limit allows for `length` m.
+    Revisit { length: f64 },
 }
 
 impl Mission {
@@ -118,6 +162,12 @@ impl Mission {
     /// began at `origin`.
     fn turn_query(p: &ExecutorParams, origin: Pose2, leg: u32, turn: u32) -> MoveQuery {
         MoveQuery { anchor: origin, f_dist: 0.0, yaw: look_yaw(turn, leg, p), d_s: 0.0 }
+    }
+
+    /// Where a search leg sets off from: the robot's position, facing the
+    /// search's heading (else the look's origin).
+    fn search_from(f: &FindRun, pose: Pose2, origin: Pose2) -> Pose2 {
+        Pose2::new(pose.x, pose.y, f.search_heading.unwrap_or(origin.theta))
     }
 
     /// The target is not in view and nothing is to be confirmed: the next
@@ -147,7 +197,8 @@ impl Mission {
                     yaw = query.yaw,
                     "revisit leg toward a landmark an earlier step saw"
                 );
-                self.call(Pending::ExploreGoal(ExploreGoalFor::Revisit), Request::MoveGoal(query))
+                let what = ExploreGoalFor::Revisit { length: p.search_leg_m };
+                self.call(Pending::ExploreGoal(what), Request::MoveGoal(query))
             }
             Explore::Idle => {
                 // Look first where the target was last seen (a person who
@@ -181,38 +232,55 @@ impl Mission {
             // exhausted, below): the instance seen without its reference is
             // the target after all.
             Explore::Look { .. } if f.reference_search_over(stamp) => self.take_set_aside(),
-            Explore::Look { turn, leg, origin, .. } => match after_look(turn, leg, p) {
-                ExplorePlan::Turn(t) => {
-                    let what = ExploreGoalFor::NextTurn { turn: t, leg, origin };
-                    self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, leg, t)))
+            Explore::Look { turn, leg, origin, .. } => {
+                let plan = after_look(turn, leg, p);
+                let onward = if plan == ExplorePlan::Ask && f.fused.is_none() && leg < p.search_legs + FRONTIER_LEGS {
+                    frontier_leg(Self::search_from(f, pose, origin), &f.frontier)
+                } else {
+                    None
+                };
+                match (plan, onward) {
+                    // The search legs are spent and nothing led anywhere: on to
+                    // where the robot has not looked, while the local planner
+                    // reports such a place ahead.
+                    (_, Some(query)) => {
+                        let l = leg + 1;
+                        f.search_heading = Some(query.anchor.theta);
+                        tracing::debug!(leg = l, frontier = ?f.frontier, f_dist = query.f_dist, heading = query.anchor.theta, "frontier leg");
+                        let what = ExploreGoalFor::SearchLeg { leg: l, length: query.f_dist.max(p.search_leg_m) };
+                        self.call(Pending::ExploreGoal(what), Request::MoveGoal(query))
+                    }
+                    (ExplorePlan::Turn(t), _) => {
+                        let what = ExploreGoalFor::NextTurn { turn: t, leg, origin };
+                        self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, leg, t)))
+                    }
+                    (ExplorePlan::Search(l), _) => {
+                        // Along the search's heading: a fan ends facing off
+                        // it, and a leg toward a lead, or round something,
+                        // ends facing elsewhere.
+                        let query = search_leg(Self::search_from(f, pose, origin), f.fused.as_ref(), f.d_s, p);
+                        tracing::debug!(leg = l, lead = ?f.fused, f_dist = query.f_dist, yaw = query.yaw, "search leg");
+                        let what = ExploreGoalFor::SearchLeg { leg: l, length: p.search_leg_m };
+                        self.call(Pending::ExploreGoal(what), Request::MoveGoal(query))
+                    }
+                    (ExplorePlan::Ask, _) if f.can_waive() => self.take_set_aside(),
+                    (ExplorePlan::Ask, None) => {
+                        let who = if f.person.is_empty() {
+                            format!("the {}", f.target)
+                        } else {
+                            format!("{} ({})", f.person, f.target)
+                        };
+                        self.ask(
+                            format!(
+                                "step {}: {who} not found after looking all around and {leg} search leg(s)",
+                                index + 1
+                            ),
+                            format!("I could not find {who}. Where should I look, or should I skip it?"),
+                        );
+                        self.hold()
+                    }
                 }
-                ExplorePlan::Search(l) => {
-                    // Along the search's heading: a fan ends facing off
-                    // it, and a leg toward a lead, or round something,
-                    // ends facing elsewhere.
-                    let from = Pose2::new(pose.x, pose.y, f.search_heading.unwrap_or(origin.theta));
-                    let query = search_leg(from, f.fused.as_ref(), f.d_s, p);
-                    tracing::debug!(leg = l, lead = ?f.fused, f_dist = query.f_dist, yaw = query.yaw, "search leg");
-                    self.call(Pending::ExploreGoal(ExploreGoalFor::SearchLeg { leg: l }), Request::MoveGoal(query))
-                }
-                ExplorePlan::Ask if f.can_waive() => self.take_set_aside(),
-                ExplorePlan::Ask => {
-                    let who = if f.person.is_empty() {
-                        format!("the {}", f.target)
-                    } else {
-                        format!("{} ({})", f.person, f.target)
-                    };
-                    self.ask(
-                        format!(
-                            "step {}: {who} not found after looking all around and {} search leg(s)",
-                            index + 1,
-                            p.search_legs
-                        ),
-                        format!("I could not find {who}. Where should I look, or should I skip it?"),
-                    );
-                    self.hold()
-                }
-            },
+            }
         }
     }
 
@@ -227,14 +295,14 @@ impl Mission {
                 Explore::Turn { goal, turn: 0, leg, since: stamp, origin }
             }
             ExploreGoalFor::NextTurn { turn, leg, origin } => Explore::Turn { goal, turn, leg, since: stamp, origin },
-            ExploreGoalFor::SearchLeg { leg } => {
+            ExploreGoalFor::SearchLeg { leg, length } => {
                 self.emit(Event::Exploring { index, phase: ExplorePhase::Search, attempt: leg });
-                Explore::Search { goal, leg, since: stamp }
+                Explore::Search { goal, leg, since: stamp, length }
             }
             // Counted as leg 0: the look-around and the search legs follow as usual.
-            ExploreGoalFor::Revisit => {
+            ExploreGoalFor::Revisit { length } => {
                 self.emit(Event::Exploring { index, phase: ExplorePhase::Revisit, attempt: 1 });
-                Explore::Search { goal, leg: 0, since: stamp }
+                Explore::Search { goal, leg: 0, since: stamp, length }
             }
         };
         if let Some(f) = self.find_mut() {
@@ -246,6 +314,9 @@ impl Mission {
     pub(super) fn explore_driven(&mut self, p: &ExecutorParams, state: Explore, answer: DriveAnswer) -> Next {
         let (stamp, pose) = (self.frame.stamp, self.frame.pose);
         let index = self.index as u32;
+        if let (false, Some(f)) = (answer.frontier.is_empty(), self.find_mut()) {
+            f.frontier.clone_from(&answer.frontier);
+        }
         let (next, twist) = match state {
             Explore::Turn { goal, turn, leg, since, origin } => {
                 // A scan turn that does not finish in time (a wheel stalled
@@ -260,8 +331,8 @@ impl Mission {
                     (Explore::Turn { goal, turn, leg, since, origin }, answer.cmd)
                 }
             }
-            Explore::Search { goal, leg, since } => {
-                let overdue = stamp - since >= p.search_leg_m / SEARCH_MIN_SPEED + SCAN_TURN_LIMIT_S;
+            Explore::Search { goal, leg, since, length } => {
+                let overdue = stamp - since >= length / SEARCH_MIN_SPEED + SCAN_TURN_LIMIT_S;
                 let ended =
                     matches!(answer.status, DriveStatus::Reached | DriveStatus::Blocked | DriveStatus::NoProgress);
                 if overdue || ended {
@@ -269,7 +340,7 @@ impl Mission {
                     let what = ExploreGoalFor::Scan { leg, origin: pose, announce: false };
                     return self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, pose, leg, 0)));
                 }
-                (Explore::Search { goal, leg, since }, answer.cmd)
+                (Explore::Search { goal, leg, since, length }, answer.cmd)
             }
             other => (other, Twist::ZERO),
         };

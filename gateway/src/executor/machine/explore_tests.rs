@@ -4,6 +4,7 @@ use std::f64::consts::{FRAC_PI_2, FRAC_PI_6};
 
 use super::super::test_support::*;
 use super::*;
+use crate::executor::Reply;
 
 /// Cycles `m` on frames 0.2 s apart, numbered from `first`, every drive
 /// reached at once, until it asks (within `limit` frames); the robot faces
@@ -194,4 +195,60 @@ fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
     assert_eq!(search_leg(pose, Some(&near), 1.5, &p).yaw, 0.0);
     let q = search_leg(pose, Some(&Vector3::new(1.0, 5.0, 0.0)), 1.5, &p);
     assert!((q.f_dist - 1.5).abs() < 1e-9 && q.yaw.abs() < 1e-9, "{q:?}");
+}
+
+#[test]
+fn spent_search_legs_go_on_to_the_frontier_the_local_planner_reports() {
+    // Every answer of the local planner reports edges of unseen space: one
+    // at (3, 4), 53° off the search's heading (+x, where the look-around
+    // began), one nearer but behind, at (−2, 0). The one search leg goes
+    // along the heading as without them; then `FRONTIER_LEGS` legs go toward
+    // the edge ahead, each to 0.75 m short of it, before the question.
+    let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
+    let mut m = mission(vec![find(1, "bicycle")]);
+    let mut goals = Vec::new();
+    for frame in 0..600u32 {
+        if m.is_awaiting() {
+            break;
+        }
+        let with_frontier = |_: &Goal| {
+            let Reply::Driven { mut answer, path } = driven(DriveStatus::Reached, 0.0, 0.0) else { unreachable!() };
+            answer.frontier = vec![[-2.0, 0.0], [3.0, 4.0]];
+            Reply::Driven { answer, path }
+        };
+        let (_, asked) = cycle(&mut m, &p, at(f64::from(frame) * 0.2, 0.0, 0.0, 0.0), blind(with_frontier));
+        goals.extend(asked.into_iter().filter_map(|r| match r {
+            Request::MoveGoal(q) => Some(q),
+            _ => None,
+        }));
+    }
+    assert!(m.is_awaiting(), "asked after the legs");
+    let legs: Vec<&MoveQuery> = goals.iter().filter(|q| q.f_dist > 0.0).collect();
+    assert_eq!(legs.len(), 1 + FRONTIER_LEGS as usize, "{legs:?}");
+    assert_eq!((legs[0].anchor.theta, legs[0].f_dist), (0.0, p.search_leg_m));
+    for leg in &legs[1..] {
+        assert!((leg.anchor.theta - 4f64.atan2(3.0)).abs() < 1e-9, "{leg:?}");
+        assert!((leg.f_dist - (5.0 - FRONTIER_SHORT_M)).abs() < 1e-9 && leg.yaw == 0.0, "{leg:?}");
+    }
+    let failed: Vec<String> = events(&mut m)
+        .iter()
+        .filter_map(|e| match e {
+            Event::StepFailed { reason, .. } => Some(reason.clone()),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(failed, vec!["step 1: the bicycle not found after looking all around and 3 search leg(s)"]);
+
+    // Facing +y from (1, 2): none reported, one where the robot stands, or
+    // only one behind: no frontier leg; a far one: `FRONTIER_LEG_MAX_M`
+    // toward it; of two, the nearer counting the turn off the heading.
+    let pose = Pose2::new(1.0, 2.0, FRAC_PI_2);
+    assert_eq!(frontier_leg(pose, &[]), None);
+    assert_eq!(frontier_leg(pose, &[[1.2, 2.6]]), None);
+    assert_eq!(frontier_leg(pose, &[[1.0, -3.0]]), None);
+    let far = frontier_leg(pose, &[[1.0, 22.0]]).expect("a far frontier");
+    assert_eq!((far.f_dist, far.anchor.theta, far.yaw), (FRONTIER_LEG_MAX_M, FRAC_PI_2, 0.0));
+    // 3 m to the right (a quarter turn, +4 m) against 6 m ahead: ahead.
+    let ahead = frontier_leg(pose, &[[4.0, 2.0], [1.0, 8.0]]).expect("one of two");
+    assert!((ahead.anchor.theta - FRAC_PI_2).abs() < 1e-9, "{ahead:?}");
 }

@@ -131,6 +131,9 @@ pub(super) struct FindRun {
     /// search leg with no lead goes that way, wherever the last leg ended
     /// facing.
     pub(super) search_heading: Option<f64>,
+    /// The frontier the local planner last reported during this FIND's
+    /// exploration (`odom`): a search leg with no lead drives there.
+    pub(super) frontier: Vec<[f64; 2]>,
 }
 
 impl FindRun {

@@ -559,6 +559,7 @@ impl Mission {
                 follow_until: None,
                 explore: Explore::Idle,
                 search_heading: None,
+                frontier: Vec::new(),
             })),
         };
         let index = self.index as u32;

@@ -71,6 +71,7 @@ pub(super) fn driven(status: DriveStatus, linear: f64, distance_to_goal: f64) ->
         distance_to_goal,
         heading_error: 0.0,
         free_paths: 10,
+        frontier: Vec::new(),
     };
     Reply::Driven { answer, path: Vec::new() }
 }

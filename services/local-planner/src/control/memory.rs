@@ -291,6 +291,7 @@ impl RobotState {
     /// remembered can be placed any more.
     pub(super) fn forget_all(&mut self) {
         self.grid.cells.clear();
+        self.seen.clear();
         self.detour = None;
         self.memory.clear();
         self.recent.clear();
@@ -314,6 +315,7 @@ impl RobotState {
             g.at = now.transform(&last.inverse_transform(&g.at));
             self.grid.cells.insert(super::detour::grid_key(&g.at), g);
         }
+        self.seen.reanchor(last, now);
         self.detour = None;
     }
 }

@@ -20,6 +20,7 @@
 //! | `giveway.rs` | a robot that waited for a person backs away along its own trail |
 //! | `narrow.rs` | a stuck step plans through narrow passages, slowly (`--local-planner-narrow`, off by default) |
 //! | `detour.rs` | a way beyond the paths' reach, searched on a rolling grid when stuck |
+//! | `frontier.rs` | what the depth has seen lately, and the nearest edge of what it has not (`--local-planner-frontier`, off by default) |
 //! | `progress.rs` | the no-progress watchdog |
 //! | `params.rs`, `view.rs` | the settings and the camera's view |
 //!
@@ -36,6 +37,7 @@ mod behind;
 mod creep;
 mod detour;
 mod follow;
+mod frontier;
 mod giveway;
 mod goal;
 mod guard;
@@ -63,6 +65,7 @@ use crate::people::Tracker;
 use crate::planner::{Planner, Scratch, Selection};
 use backout::BackOut;
 use detour::{Detour, DetourGrid};
+use frontier::SeenGrid;
 use giveway::GiveWay;
 use goal::GoalMove;
 use memory::{RecentView, Remembered};
@@ -104,6 +107,10 @@ pub struct StepOutput {
     /// Bearing of the goal from the heading (rotation goals: the yaw error), rad.
     pub heading_error: f64,
     pub free_paths: usize,
+    /// The nearest edges of the space the depth has not seen, `odom`,
+    /// nearest first (`frontier.rs`; empty: none, or
+    /// `FollowParams::frontier` is off).
+    pub frontier: Vec<Vector2<f64>>,
 }
 
 /// The state a robot keeps between frames.
@@ -150,6 +157,8 @@ pub struct RobotState {
     /// Where (`odom`) this goal began planning through a narrow passage
     /// (`narrow.rs`).
     narrow_from: Option<Vector2<f64>>,
+    /// What the depth has seen lately, for the frontier (`frontier.rs`).
+    seen: SeenGrid,
 }
 
 impl RobotState {
@@ -162,6 +171,12 @@ impl RobotState {
     pub fn step(&mut self, planner: &Planner, p: &FollowParams, input: StepInput<'_>) -> StepOutput {
         let dt = self.begin_frame(&input, p);
         let mut out = self.plan_step(planner, p, &input, dt);
+        if p.frontier {
+            if let Some(seen) = &input.cloud.seen {
+                self.seen.observe(&input.pose, seen, input.stamp);
+            }
+            out.frontier = self.seen.frontier_at(&input.pose.position(), input.stamp).to_vec();
+        }
         let near = self.slow_near_people(&input, out.linear, out.angular, p);
         let blocked = matches!(out.status, StepStatus::Blocked | StepStatus::NoProgress);
         if near.touches || (blocked && self.person_in_the_way(&input, p)) {
@@ -200,6 +215,7 @@ impl RobotState {
             distance_to_goal: distance,
             heading_error: bearing,
             free_paths: 0,
+            frontier: Vec::new(),
         };
         if goal.rotation_only {
             return self.turn_to_yaw(&input, p, out, dt);

@@ -83,6 +83,9 @@ pub struct FollowParams {
     /// Plan detours on the rolling grid when the direct way makes no
     /// progress (`detour.rs`).
     pub detour: bool,
+    /// Keep what the depth has seen and report the frontier of what it has
+    /// not (`frontier.rs`), for the executor's search for a target.
+    pub frontier: bool,
     /// A stuck step plans through narrow passages with the planner's
     /// narrow tables (`narrow.rs`; the planner needs them:
     /// `PlannerParams::narrow_clearance_m`).
@@ -139,6 +142,7 @@ impl Default for FollowParams {
             goal_shift_max_m: 0.4,
             goal_orbit_max_rad: std::f64::consts::FRAC_PI_2,
             detour: false,
+            frontier: false,
             narrow: false,
         }
     }

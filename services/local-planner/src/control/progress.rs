@@ -52,6 +52,7 @@ mod tests {
             distance_to_goal: 0.0,
             heading_error: 0.0,
             free_paths: 1,
+            frontier: Vec::new(),
         }
     }
 
