@@ -89,8 +89,13 @@ impl SeenGrid {
             let (s, c) = (pose.theta + bearing).sin_cos();
             let dir = Vector2::new(c, s);
             let steps = (free / (0.5 * SEEN_M)).floor() as usize;
+            let mut last = None;
             for i in 0..=steps {
                 let k = key(&(origin + dir * (i as f64 * 0.5 * SEEN_M)));
+                // Two steps a cell: each cell once.
+                if last.replace(k) == Some(k) {
+                    continue;
+                }
                 let cell = self.cells.entry(k).or_insert(Seen { blocked: false, stamp });
                 if !(cell.blocked && cell.stamp == stamp) {
                     *cell = Seen { blocked: false, stamp };
