@@ -73,7 +73,7 @@ pub(super) struct DetourGrid {
 }
 
 pub(super) fn grid_key(at: &Vector2<f64>) -> (i32, i32) {
-    ((at.x / GRID_M).floor() as i32, (at.y / GRID_M).floor() as i32)
+    super::cell_of(at, GRID_M)
 }
 
 /// An active detour: the goal it serves (`odom`), the waypoint driven to,

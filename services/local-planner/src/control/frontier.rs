@@ -33,7 +33,7 @@ use vlnav_geometry::Pose2;
 use crate::cloud::SeenRange;
 
 /// Side of a seen cell, m.
-pub(super) const SEEN_M: f64 = 0.25;
+const SEEN_M: f64 = 0.25;
 /// How long a seen cell is kept without being seen again, s.
 const SEEN_KEEP_S: f64 = 300.0;
 /// Seen cells farther than this from the robot are dropped, m.
@@ -47,7 +47,7 @@ const OWN_GROUND_M: f64 = 0.75;
 /// The frontier is searched again after this much sensor time, s.
 const REFRESH_S: f64 = 0.5;
 /// At most this many edges are reported, nearest first.
-pub(super) const FRONTIER_MAX: usize = 8;
+const FRONTIER_MAX: usize = 8;
 
 /// What a frame saw of one cell.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -65,7 +65,7 @@ pub(super) struct SeenGrid {
 }
 
 fn key(at: &Vector2<f64>) -> (i32, i32) {
-    ((at.x / SEEN_M).floor() as i32, (at.y / SEEN_M).floor() as i32)
+    super::cell_of(at, SEEN_M)
 }
 
 fn centre(k: (i32, i32)) -> Vector2<f64> {

@@ -94,7 +94,7 @@ pub(super) const MOVED_IN_SLACK_M: f64 = 0.05;
 pub(super) const MEMORY_VOXEL: f64 = 0.05;
 
 pub(super) fn memory_key(at: &Vector2<f64>) -> (i32, i32) {
-    ((at.x / MEMORY_VOXEL).floor() as i32, (at.y / MEMORY_VOXEL).floor() as i32)
+    super::cell_of(at, MEMORY_VOXEL)
 }
 
 /// How tall a person is taken to be for whether the image shows them, m.

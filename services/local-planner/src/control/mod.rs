@@ -319,6 +319,12 @@ impl RobotState {
     }
 }
 
+/// The cell of side `side` m holding `at` (`odom`), as the memory and the
+/// rolling grids key their cells.
+fn cell_of(at: &Vector2<f64>, side: f64) -> (i32, i32) {
+    ((at.x / side).floor() as i32, (at.y / side).floor() as i32)
+}
+
 /// A point's distance and bearing from the robot (`base_link`), m and rad.
 fn polar(at: &Vector2<f64>) -> (f64, f64) {
     let distance = at.norm();
