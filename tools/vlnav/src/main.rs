@@ -32,6 +32,17 @@ enum WorldsCmd {
     Generate(vlnav_eval::worlds::GenerateArgs),
 }
 
+/// `vlnav eval`: the harness's settings, and the mission executor's of the
+/// stack the trials run on (its defaults unless given: an executor setting
+/// is measured on the development set this way, docs/evaluation.md).
+#[derive(clap::Args)]
+struct EvalCmd {
+    #[command(flatten)]
+    eval: vlnav_eval::EvalArgs,
+    #[command(flatten, next_help_heading = "Mission executor")]
+    executor: vlnav_gateway::config::ExecutorParams,
+}
+
 #[derive(Parser)]
 #[command(name = "vlnav", version, about = "Language-driven, map-free navigation for service robots")]
 struct Cli {
@@ -54,7 +65,7 @@ enum Cmd {
         up: UpArgs,
     },
     /// Run the evaluation suite in lockstep simulation through the real services.
-    Eval(vlnav_eval::EvalArgs),
+    Eval(EvalCmd),
     /// Generated worlds: `vlnav worlds generate --family hall --count 20 --seed 0 --out DIR`.
     #[command(subcommand)]
     Worlds(WorldsCmd),
@@ -251,7 +262,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Cmd::Eval(args) => {
+        Cmd::Eval(EvalCmd { eval: args, executor }) => {
             let _telemetry = telemetry::init("vlnav")?;
             let data = args.out.join("gateway");
             let up_args = UpArgs {
@@ -259,6 +270,7 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
                 ephemeral_ports: true,
                 data_dir: data,
                 perception: args.perception,
+                executor,
                 ..UpArgs::default()
             };
             let stack = up(&up_args).await?;

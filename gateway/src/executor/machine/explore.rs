@@ -5,7 +5,7 @@
 use nalgebra::Vector3;
 use vlnav_geometry::wrap_angle as wrap;
 
-use super::{FindRun, Mission, MoveQuery, Next, Pending, Request, bearing};
+use super::{FindRun, Mission, MoveQuery, Next, OFF_COURSE_RAD, Pending, Request, bearing};
 use crate::config::ExecutorParams;
 use crate::executor::model::*;
 
@@ -212,7 +212,7 @@ impl Mission {
                     // An instance seen off the course waits for the look along it.
                     (_, Some(c)) if f.course_first.is_some() => Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad)),
                     (Some(t), _) => Pose2::new(pose.x, pose.y, wrap(bearing(pose, &t) - p.scan_turn_rad)),
-                    (None, Some(c)) if wrap(c - pose.theta).abs() > p.scan_turn_rad => {
+                    (None, Some(c)) if wrap(c - pose.theta).abs() > OFF_COURSE_RAD => {
                         Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad))
                     }
                     (None, _) => pose,

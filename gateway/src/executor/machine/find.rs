@@ -8,7 +8,7 @@ use vlnav_geometry::camera::Projector;
 use vlnav_geometry::wrap_angle;
 
 use super::landmarks::remember_landmarks;
-use super::{Explore, Mission, Next, Pending, REFERENCE_PLACES, REFERENCE_SAME_M, Request, bearing};
+use super::{Explore, Mission, Next, OFF_COURSE_RAD, Pending, REFERENCE_PLACES, REFERENCE_SAME_M, Request, bearing};
 use crate::config::ExecutorParams;
 use crate::executor::model::*;
 
@@ -426,7 +426,7 @@ impl Mission {
         let (stamp, pose) = (self.frame.stamp, self.frame.pose);
         let index = self.index as u32;
         let Some(f) = self.find_mut() else { return self.hold() };
-        if f.course_first.is_some_and(|c| wrap_angle(c - pose.theta).abs() <= p.scan_turn_rad / 2.0) {
+        if f.course_first.is_some_and(|c| wrap_angle(c - pose.theta).abs() <= OFF_COURSE_RAD / 2.0) {
             f.course_first = None;
         }
         // A sighting where an outvoted candidate stood is that object again;
@@ -483,7 +483,7 @@ impl Mission {
                 let off_course = f
                     .course_first
                     .zip(f.fused)
-                    .is_some_and(|(c, t)| f.put_to_vote() && wrap_angle(bearing(pose, &t) - c).abs() > p.scan_turn_rad);
+                    .is_some_and(|(c, t)| f.put_to_vote() && wrap_angle(bearing(pose, &t) - c).abs() > OFF_COURSE_RAD);
                 if ready && off_course && !alone {
                     // "Move 8 m, then the motorcycle": the one ahead on the
                     // course, if there is one, before one off to the side.

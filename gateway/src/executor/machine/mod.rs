@@ -105,6 +105,12 @@ const STAGE_RETRY_MAX_S: f64 = 1.0;
 const REFERENCE_SAME_M: f64 = 0.75;
 const REFERENCE_PLACES: usize = 16;
 
+/// A heading more than this off the route's course (the heading of the last
+/// MOVE's or FIND's goal) is off it, rad: a FIND that begins so looks along
+/// the course first, and an instance seen so far off it waits for that look
+/// (docs/perception.md, "a look-around").
+const OFF_COURSE_RAD: f64 = std::f64::consts::FRAC_PI_6;
+
 /// A goal relative to `anchor`: turn by `yaw`, then drive `f_dist` metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct MoveQuery {
@@ -542,7 +548,7 @@ impl Mission {
                 reference_waived: false,
                 course_first: self
                     .course
-                    .filter(|c| vlnav_geometry::wrap_angle(c - self.frame.pose.theta).abs() > p.scan_turn_rad),
+                    .filter(|c| vlnav_geometry::wrap_angle(c - self.frame.pose.theta).abs() > OFF_COURSE_RAD),
                 // An unnamed fixed target only: people walk away.
                 revisit: (step.action == Action::Find && step.person.is_empty())
                     .then(|| remembered(&self.landmarks, step.class_id, self.index, p.confirm_frames, self.frame.pose))
