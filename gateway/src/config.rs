@@ -219,6 +219,62 @@ impl Default for ExecutorParams {
     }
 }
 
+impl ExecutorParams {
+    /// The settings that differ from the defaults, as the flags that set
+    /// them (`--scan-turns 6`): what an evaluation report says it ran with.
+    pub fn changed_flags(&self) -> Vec<String> {
+        let d = Self::default();
+        // Destructured, so that a new setting cannot be left out here.
+        let Self {
+            confirm_frames,
+            confirm_window,
+            min_score,
+            default_d_s,
+            unseen_frames,
+            scan_turn_rad,
+            scan_turns,
+            look_frames,
+            search_fan_turns,
+            search_legs,
+            search_leg_m,
+            stuck_timeout_s,
+            settle_after_s,
+            progress_timeout_s,
+            step_timeout_s,
+            follow_default_s,
+            follow_lost_s,
+        } = self;
+        let mut out = Vec::new();
+        macro_rules! changed {
+            ($($field:ident),*) => {$(
+                if *$field != d.$field {
+                    out.push(format!("--{} {}", stringify!($field).replace('_', "-"), $field));
+                }
+            )*};
+        }
+        changed!(
+            confirm_frames,
+            confirm_window,
+            min_score,
+            default_d_s,
+            unseen_frames,
+            scan_turn_rad,
+            scan_turns,
+            look_frames,
+            search_fan_turns,
+            search_legs,
+            search_leg_m,
+            stuck_timeout_s,
+            settle_after_s,
+            progress_timeout_s,
+            step_timeout_s,
+            follow_default_s,
+            follow_lost_s
+        );
+        out
+    }
+}
+
 impl GatewayOptions {
     /// Options pointing at services on loopback `ports`, data in `data_dir`.
     pub fn loopback(ports: &crate::config::StagePorts, data_dir: PathBuf) -> Self {
@@ -295,5 +351,26 @@ impl Default for StagePorts {
             subgoal: ports::SUBGOAL,
             local_planner: ports::LOCAL_PLANNER,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::ExecutorParams;
+
+    #[test]
+    fn changed_executor_settings_are_named_by_their_flags() {
+        assert!(ExecutorParams::default().changed_flags().is_empty(), "the defaults name nothing");
+        let p = ExecutorParams { scan_turns: 6, search_leg_m: 5.5, ..Default::default() };
+        assert_eq!(p.changed_flags(), vec!["--scan-turns 6", "--search-leg-m 5.5"]);
+        // Each name is a flag the command line takes.
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            executor: ExecutorParams,
+        }
+        let args: Vec<String> = p.changed_flags().iter().flat_map(|f| f.split(' ').map(str::to_string)).collect();
+        let parsed = <Cli as clap::Parser>::try_parse_from(std::iter::once("x".to_string()).chain(args)).unwrap();
+        assert_eq!(parsed.executor.changed_flags(), p.changed_flags());
     }
 }

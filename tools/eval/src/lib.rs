@@ -111,6 +111,10 @@ pub struct EvalArgs {
     /// compressed link.
     #[command(flatten)]
     pub link: Codecs,
+    /// The stack's mission-executor settings that differ from the defaults,
+    /// as flags (`--scan-turns 6`), named in the report (set by `vlnav eval`).
+    #[arg(skip)]
+    pub executor_flags: Vec<String>,
 }
 
 impl EvalArgs {
@@ -124,11 +128,15 @@ impl EvalArgs {
         if self.link.depth != DepthCodec::Raw {
             parts.push(format!("{} depth", self.link.depth_name()));
         }
-        if parts.is_empty() {
+        let mut label = if parts.is_empty() {
             self.perception.as_str().to_string()
         } else {
             format!("{}, robot link: {}", self.perception.as_str(), parts.join(", "))
+        };
+        if !self.executor_flags.is_empty() {
+            label = format!("{label}, executor: {}", self.executor_flags.join(" "));
         }
+        label
     }
 }
 
@@ -152,6 +160,7 @@ impl Default for EvalArgs {
             perception: PerceptionMode::Realistic,
             beside: None,
             link: Codecs::default(),
+            executor_flags: Vec::new(),
         }
     }
 }
@@ -414,6 +423,11 @@ mod tests {
             Codecs { colour: ColourCodec::Jpeg, jpeg_quality: 85, depth: DepthCodec::Disparity, disparity_step: 0.01 }
         );
         assert_eq!(cli.eval.perception_label(), "realistic, robot link: jpeg q85 colour, disparity 0.01/m depth");
+        let executor = EvalArgs { executor_flags: vec!["--scan-turns 6".into()], ..cli.eval };
+        assert_eq!(
+            executor.perception_label(),
+            "realistic, robot link: jpeg q85 colour, disparity 0.01/m depth, executor: --scan-turns 6"
+        );
     }
 
     #[test]

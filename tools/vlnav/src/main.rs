@@ -262,7 +262,8 @@ async fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Cmd::Eval(EvalCmd { eval: args, executor }) => {
+        Cmd::Eval(EvalCmd { eval: mut args, executor }) => {
+            args.executor_flags = executor.changed_flags();
             let _telemetry = telemetry::init("vlnav")?;
             let data = args.out.join("gateway");
             let up_args = UpArgs {
