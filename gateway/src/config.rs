@@ -224,33 +224,18 @@ impl ExecutorParams {
     /// them (`--scan-turns 6`): what an evaluation report says it ran with.
     pub fn changed_flags(&self) -> Vec<String> {
         let d = Self::default();
-        // Destructured, so that a new setting cannot be left out here.
-        let Self {
-            confirm_frames,
-            confirm_window,
-            min_score,
-            default_d_s,
-            unseen_frames,
-            scan_turn_rad,
-            scan_turns,
-            look_frames,
-            search_fan_turns,
-            search_legs,
-            search_leg_m,
-            stuck_timeout_s,
-            settle_after_s,
-            progress_timeout_s,
-            step_timeout_s,
-            follow_default_s,
-            follow_lost_s,
-        } = self;
-        let mut out = Vec::new();
+        // Destructured without `..`, so that a new setting cannot be left out.
         macro_rules! changed {
-            ($($field:ident),*) => {$(
-                if *$field != d.$field {
-                    out.push(format!("--{} {}", stringify!($field).replace('_', "-"), $field));
-                }
-            )*};
+            ($($field:ident),*) => {{
+                let Self { $($field),* } = self;
+                let mut out = Vec::new();
+                $(
+                    if *$field != d.$field {
+                        out.push(format!("--{} {}", stringify!($field).replace('_', "-"), $field));
+                    }
+                )*
+                out
+            }};
         }
         changed!(
             confirm_frames,
@@ -270,8 +255,7 @@ impl ExecutorParams {
             step_timeout_s,
             follow_default_s,
             follow_lost_s
-        );
-        out
+        )
     }
 }
 
