@@ -208,16 +208,18 @@ impl Mission {
                 // facing 73° off it, and the look-around, turning on from
                 // there, came to the chair off the route before the one on
                 // it: evaluation, lab); then on round from there.
-                let origin = match (f.predicted(stamp), course) {
+                // The search's heading is that first way looked (the course,
+                // or toward the last sighting); the look-around's origin is
+                // one scan turn short of it, so that its first turn faces it.
+                let first = match (f.predicted(stamp), course) {
                     // An instance seen off the course waits for the look along it.
-                    (_, Some(c)) if f.course_first.is_some() => Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad)),
-                    (Some(t), _) => Pose2::new(pose.x, pose.y, wrap(bearing(pose, &t) - p.scan_turn_rad)),
-                    (None, Some(c)) if wrap(c - pose.theta).abs() > OFF_COURSE_RAD => {
-                        Pose2::new(pose.x, pose.y, wrap(c - p.scan_turn_rad))
-                    }
-                    (None, _) => pose,
+                    (_, Some(c)) if f.course_first.is_some() => Some(c),
+                    (Some(t), _) => Some(bearing(pose, &t)),
+                    (None, Some(c)) if wrap(c - pose.theta).abs() > OFF_COURSE_RAD => Some(c),
+                    (None, _) => None,
                 };
-                f.search_heading.get_or_insert(origin.theta);
+                let origin = first.map_or(pose, |h| Pose2::new(pose.x, pose.y, wrap(h - p.scan_turn_rad)));
+                f.search_heading.get_or_insert(first.unwrap_or(pose.theta));
                 let what = ExploreGoalFor::Scan { leg: 0, origin, announce: true };
                 self.call(Pending::ExploreGoal(what), Request::MoveGoal(Self::turn_query(p, origin, 0, 0)))
             }

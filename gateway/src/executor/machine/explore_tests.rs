@@ -172,6 +172,38 @@ fn the_look_after_a_search_leg_fans_about_the_way_ahead_and_the_next_leg_keeps_i
 }
 
 #[test]
+fn search_legs_after_a_look_that_began_off_the_course_go_along_the_course() {
+    // The MOVE ended facing 73° left of its course (+x): the look-around
+    // begins a scan turn short of the course, so that its first turn faces
+    // it, and the search legs after it go along the course itself, not
+    // that scan turn off it.
+    let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 2, ..Default::default() };
+    let mut m = mission(vec![mv(3.0, 0.0), find(56, "chair")]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 3.0)));
+    cycle(&mut m, &p, at(5.0, 3.0, 0.0, 1.27), blind(|_| driven(DriveStatus::Reached, 0.0, 0.02)));
+    let (mut heading, mut legs) = (1.27, Vec::new());
+    for k in 0..400 {
+        if m.is_awaiting() {
+            break;
+        }
+        let pose = at(5.2 + 0.2 * f64::from(k), 3.0, 0.0, heading);
+        let (_, asked) = cycle(&mut m, &p, pose, blind(|_| driven(DriveStatus::Reached, 0.0, 0.0)));
+        for q in asked.iter().filter_map(|r| match r {
+            Request::MoveGoal(q) => Some(*q),
+            _ => None,
+        }) {
+            heading = wrap(q.anchor.theta + q.yaw);
+            if q.f_dist > 0.0 {
+                legs.push(heading);
+            }
+        }
+    }
+    assert!(m.is_awaiting(), "the search ends in a question");
+    assert_eq!(legs.len(), 2, "{legs:?}");
+    assert!(legs.iter().all(|h| h.abs() < 1e-9), "every leg along the course: {legs:?}");
+}
+
+#[test]
 fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
     // One glimpse of a chair 8 m away, 30° to the left, never confirmed:
     // after the look-around the search leg goes toward it, half the way to
@@ -184,7 +216,7 @@ fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
     let legs: Vec<MoveQuery> =
         search_until_asked(&mut m, &p, 1, 300, |_, h| h).into_iter().filter(|q| q.f_dist > 0.0).collect();
     assert_eq!(legs.len(), 1, "{legs:?}");
-    assert!((legs[0].yaw - FRAC_PI_6).abs() < 1e-9, "{:?}", legs[0]);
+    assert!((legs[0].anchor.theta + legs[0].yaw - FRAC_PI_6).abs() < 1e-9, "toward the glimpse: {:?}", legs[0]);
     let room = 8.0 - p.default_d_s;
     assert!((legs[0].f_dist - (room / 2.0).max(p.search_leg_m).min(room)).abs() < 1e-9, "{:?}", legs[0]);
 
