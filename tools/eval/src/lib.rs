@@ -134,7 +134,7 @@ impl EvalArgs {
             format!("{}, robot link: {}", self.perception.as_str(), parts.join(", "))
         };
         if !self.executor_flags.is_empty() {
-            label = format!("{label}, executor: {}", self.executor_flags.join(" "));
+            label.push_str(&format!(", executor: {}", self.executor_flags.join(" ")));
         }
         label
     }
