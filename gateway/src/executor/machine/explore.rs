@@ -260,8 +260,11 @@ impl Mission {
                         // Along the search's heading: a fan ends facing off
                         // it, and a leg toward a lead, or round something,
                         // ends facing elsewhere.
-                        let query = search_leg(Self::search_from(f, pose, origin), f.fused.as_ref(), f.d_s, p);
-                        tracing::debug!(leg = l, lead = ?f.fused, f_dist = query.f_dist, yaw = query.yaw, "search leg");
+                        // A lead behind where the route's MOVE ended is not
+                        // the one the instruction means (find.rs, `route_end`).
+                        let lead = f.fused.filter(|t| !f.behind_route_end(&t.xy()));
+                        let query = search_leg(Self::search_from(f, pose, origin), lead.as_ref(), f.d_s, p);
+                        tracing::debug!(leg = l, ?lead, f_dist = query.f_dist, yaw = query.yaw, "search leg");
                         let what = ExploreGoalFor::SearchLeg { leg: l, length: p.search_leg_m };
                         self.call(Pending::ExploreGoal(what), Request::MoveGoal(query))
                     }

@@ -49,6 +49,11 @@ const REFERENCE_MARGIN_M: f64 = 0.5;
 /// vote that dropped it (generated worlds, docs/evaluation.md).
 const OCCLUDER_SHARE: f64 = 0.6;
 
+/// A candidate stands behind where the route's last MOVE ended when it lies
+/// more than this behind that point along the MOVE's course, m: the slack
+/// a MOVE ends with (up to 0.5 m) and the fused position's error.
+const BEHIND_M: f64 = 1.0;
+
 /// A sighting this close to an outvoted candidate's place is that object, m.
 const REJECTED_M: f64 = 0.75;
 
@@ -75,6 +80,9 @@ pub(super) struct SetAside {
     pub(super) goal: Goal,
     pub(super) detection: Detection,
     pub(super) range_m: f64,
+    /// Set aside for standing behind where the route's last MOVE ended,
+    /// not for want of its reference.
+    pub(super) behind: bool,
 }
 
 #[derive(Debug)]
@@ -118,6 +126,11 @@ pub(super) struct FindRun {
     /// (a MOVE that went round something), and an instance off the course
     /// is confirmed only after the view along it showed none.
     pub(super) course_first: Option<f64>,
+    /// Where the route's last MOVE ended (`odom`) and its course, when a
+    /// MOVE came right before this step: "move 13 meters forward, then stop
+    /// before the backpack" means a backpack ahead of that point, and one
+    /// behind it is set aside while the search looks ahead.
+    pub(super) route_end: Option<(Vector2<f64>, f64)>,
     /// Where an earlier step saw an object of this class ([`remembered`]),
     /// until the exploration has driven toward it.
     pub(super) revisit: Option<Vector2<f64>>,
@@ -167,9 +180,19 @@ impl FindRun {
     /// `at` is where a candidate set aside stood, and still no reference
     /// has been seen next to it.
     fn set_aside_at(&self, at: &Vector2<f64>) -> bool {
-        self.needs_reference()
-            && self.set_aside.iter().any(|s| (s.fused.xy() - at).norm() <= CONSISTENT_M)
-            && !self.next_to_reference(at)
+        let near = |s: &&SetAside| (s.fused.xy() - at).norm() <= CONSISTENT_M;
+        !self.reference_waived
+            && self
+                .set_aside
+                .iter()
+                .filter(near)
+                .any(|s| s.behind || (self.needs_reference() && !self.next_to_reference(at)))
+    }
+
+    /// `at` lies behind where the route's last MOVE ended, along its course.
+    pub(super) fn behind_route_end(&self, at: &Vector2<f64>) -> bool {
+        self.route_end
+            .is_some_and(|(end, course)| (at - end).dot(&Vector2::new(course.cos(), course.sin())) < -BEHIND_M)
     }
 
     /// The search for an instance next to its reference has had its time
@@ -505,21 +528,26 @@ impl Mission {
                 let alone = f.needs_reference()
                     && !f.reference_at.is_empty()
                     && f.fused.is_some_and(|t| !f.next_to_reference(&t.xy()));
+                let behind =
+                    f.put_to_vote() && !f.reference_waived && f.fused.is_some_and(|t| f.behind_route_end(&t.xy()));
                 let off_course = f
                     .course_first
                     .zip(f.fused)
                     .is_some_and(|(c, t)| f.put_to_vote() && wrap_angle(bearing(pose, &t) - c).abs() > OFF_COURSE_RAD);
-                if ready && off_course && !alone {
+                if ready && off_course && !alone && !behind {
                     // "Move 8 m, then the motorcycle": the one ahead on the
                     // course, if there is one, before one off to the side.
                     tracing::debug!(course = ?f.course_first, "candidate off the course: look along the course first");
                     return self.explore(p);
-                } else if ready && alone {
+                } else if ready && (alone || behind) {
                     // "The bicycle next to the stop sign", and none stood
-                    // next to this one: look on for one that has.
+                    // next to this one; or "move 8 m, then the motorcycle",
+                    // and this one stands behind where the MOVE ended: look
+                    // on for one that fits.
                     if let (Some(t), Some(goal)) = (f.fused.take(), f.goal) {
-                        tracing::debug!(x = t.x, y = t.y, references = ?f.reference_at, "candidate with no reference next to it: set aside");
-                        f.set_aside.push(SetAside { fused: t, goal, detection: b, range_m: est.range_m });
+                        tracing::debug!(x = t.x, y = t.y, references = ?f.reference_at, behind, "candidate set aside");
+                        let behind = behind && !alone;
+                        f.set_aside.push(SetAside { fused: t, goal, detection: b, range_m: est.range_m, behind });
                         f.set_aside_since.get_or_insert(stamp);
                     }
                     f.new_track();

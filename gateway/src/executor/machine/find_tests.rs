@@ -550,3 +550,37 @@ fn an_instance_off_the_course_waits_for_a_look_along_the_course() {
     }
     assert_eq!(seen, 1, "taken once the course was looked along");
 }
+
+/// A 3 m MOVE along +x, then a FIND of a chair the stages put at
+/// `chair_at`, in view for 12 frames: the frame its sighting is taken, if
+/// any (the search is a look-around of two turns, no legs).
+fn chair_after_a_move(chair_at: Vector3<f64>) -> Option<u32> {
+    let p = ExecutorParams { unseen_frames: 2, scan_turns: 2, look_frames: 1, search_legs: 0, ..Default::default() };
+    let mut m = mission(vec![mv(3.0, 0.0), find(56, "chair")]);
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Moving, 1.0, 3.0)));
+    cycle(&mut m, &p, at(5.0, 3.0, 0.0, 0.0), blind(|_| driven(DriveStatus::Reached, 0.0, 0.02)));
+    let mut seen_at = None;
+    for f in 0..40u32 {
+        let scene = move |_| if f < 12 { vec![chair(70.0, 95.0)] } else { Vec::new() };
+        cycle(&mut m, &p, at(5.1 + f64::from(f) * 0.1, 3.0, 0.0, 0.0), sees_until(f, scene, chair_at));
+        let (seen, question) = asked_anything(&mut m);
+        assert!(!question, "frame {f}: asked the user");
+        if seen > 0 {
+            seen_at.get_or_insert(f);
+        }
+    }
+    seen_at
+}
+
+#[test]
+fn an_instance_behind_where_the_move_ended_is_taken_only_when_the_search_finds_none_ahead() {
+    // "Move 3 meters forward, then stop before the chair": a chair 2 m
+    // ahead of where the MOVE ended is confirmed in the vote; one 2.5 m
+    // behind that point (seen over the shoulder) is set aside while the
+    // robot looks on, and taken when the search finds none ahead.
+    let p = ExecutorParams::default();
+    let ahead = chair_after_a_move(Vector3::new(5.0, 0.5, 0.5));
+    assert!(ahead.is_some_and(|f| f <= p.confirm_window), "ahead: confirmed in the vote, {ahead:?}");
+    let behind = chair_after_a_move(Vector3::new(0.5, 1.0, 0.5));
+    assert!(behind.is_some_and(|f| f >= 12), "behind: taken after the search, not in the vote, {behind:?}");
+}
