@@ -118,8 +118,9 @@ pub(super) struct FindRun {
     pub(super) set_aside: Vec<SetAside>,
     /// When the first candidate was set aside (sensor time).
     pub(super) set_aside_since: Option<f64>,
-    /// The search found no instance next to its reference: the nearest one
-    /// set aside is the target after all.
+    /// The search found no instance next to its reference (or none ahead
+    /// of where the route's MOVE ended): the nearest one set aside is the
+    /// target after all.
     pub(super) reference_waived: bool,
     /// The route's course (odom heading), while the robot has not yet
     /// looked along it: the step began facing more than a scan turn off it
@@ -177,8 +178,9 @@ impl FindRun {
         self.reference_at.iter().any(|r| (r - at).norm() <= NEXT_TO_M)
     }
 
-    /// `at` is where a candidate set aside stood, and still no reference
-    /// has been seen next to it.
+    /// `at` is where a candidate set aside stood: one behind where the
+    /// route's MOVE ended, or one with still no reference seen next to it
+    /// (until the search is over and the set-aside ones may be taken).
     fn set_aside_at(&self, at: &Vector2<f64>) -> bool {
         let near = |s: &&SetAside| (s.fused.xy() - at).norm() <= CONSISTENT_M;
         !self.reference_waived

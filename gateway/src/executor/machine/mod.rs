@@ -52,7 +52,9 @@
 //!   taken when a bounded search finds none with (docs/perception.md,
 //!   "Relations"). A step that begins facing more
 //!   than a scan turn off the route's course confirms an instance off the
-//!   course only after looking along it.
+//!   course only after looking along it; right after a MOVE, one more than
+//!   1 m behind where the MOVE ended is set aside like one without its
+//!   reference, and taken only when the search finds none ahead.
 //!   Objects of every class seen during the mission's FIND steps are
 //!   remembered where they stood (odom footprints, [`Landmark`]): a FIND
 //!   whose target is not in view, and whose class an earlier step saw,
