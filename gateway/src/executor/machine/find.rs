@@ -127,11 +127,12 @@ pub(super) struct FindRun {
     /// (a MOVE that went round something), and an instance off the course
     /// is confirmed only after the view along it showed none.
     pub(super) course_first: Option<f64>,
-    /// Where the route's last MOVE ended (`odom`) and its course, when a
-    /// MOVE came right before this step: "move 13 meters forward, then stop
-    /// before the backpack" means a backpack ahead of that point, and one
-    /// behind it is set aside while the search looks ahead.
-    pub(super) route_end: Option<(Vector2<f64>, f64)>,
+    /// The goal of the route's last MOVE (`odom`; its heading is the
+    /// MOVE's course), when a MOVE came right before this step: "move 13
+    /// meters forward, then stop before the backpack" means a backpack ahead
+    /// of that point, and one behind it is set aside while the search looks
+    /// ahead.
+    pub(super) route_end: Option<Pose2>,
     /// Where an earlier step saw an object of this class ([`remembered`]),
     /// until the exploration has driven toward it.
     pub(super) revisit: Option<Vector2<f64>>,
@@ -194,7 +195,7 @@ impl FindRun {
     /// `at` lies behind where the route's last MOVE ended, along its course.
     pub(super) fn behind_route_end(&self, at: &Vector2<f64>) -> bool {
         self.route_end
-            .is_some_and(|(end, course)| (at - end).dot(&Vector2::new(course.cos(), course.sin())) < -BEHIND_M)
+            .is_some_and(|end| (at - end.position()).dot(&Vector2::new(end.theta.cos(), end.theta.sin())) < -BEHIND_M)
     }
 
     /// The search for an instance next to its reference has had its time

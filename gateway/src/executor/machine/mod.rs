@@ -551,13 +551,14 @@ impl Mission {
                 course_first: self
                     .course
                     .filter(|c| vlnav_geometry::wrap_angle(c - self.frame.pose.theta).abs() > OFF_COURSE_RAD),
+                // `course` is that goal's heading, unless a question since
+                // cleared it.
                 route_end: self
                     .index
                     .checked_sub(1)
                     .and_then(|i| self.plan.get(i))
-                    .filter(|s| s.action == Action::Move)
-                    .and(self.last_goal.zip(self.course))
-                    .map(|(g, c)| (g.position(), c)),
+                    .filter(|s| s.action == Action::Move && self.course.is_some())
+                    .and(self.last_goal),
                 // An unnamed fixed target only: people walk away.
                 revisit: (step.action == Action::Find && step.person.is_empty())
                     .then(|| remembered(&self.landmarks, step.class_id, self.index, p.confirm_frames, self.frame.pose))
