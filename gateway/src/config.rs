@@ -193,6 +193,12 @@ pub struct ExecutorParams {
     /// A followed target unseen this long triggers exploration, seconds.
     #[arg(long, default_value_t = 3.0)]
     pub follow_lost_s: f64,
+    /// Count a box as a sighting only if its height fits its class at the
+    /// depth measured in it (a person 1.0–2.0 m, a chair 0.7–1.2 m, …;
+    /// docs/perception.md). Off: on the development set it gained too
+    /// little to tell from chance (docs/evaluation.md).
+    #[arg(long, env = "VLNAV_SIZE_CHECK", default_value_t = false, action = clap::ArgAction::Set)]
+    pub size_check: bool,
 }
 
 impl Default for ExecutorParams {
@@ -215,6 +221,7 @@ impl Default for ExecutorParams {
             step_timeout_s: 180.0,
             follow_default_s: 30.0,
             follow_lost_s: 3.0,
+            size_check: false,
         }
     }
 }
@@ -254,7 +261,8 @@ impl ExecutorParams {
             progress_timeout_s,
             step_timeout_s,
             follow_default_s,
-            follow_lost_s
+            follow_lost_s,
+            size_check
         )
     }
 }

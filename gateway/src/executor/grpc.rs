@@ -162,6 +162,7 @@ impl Stages<'_> {
                     status,
                     goal: est.goal.as_ref().map(goal_from_proto).transpose()?,
                     fused_target: est.fused_target.map(|p| Vector3::new(p.x, p.y, p.z)),
+                    observed: est.observed_target.map(|p| Vector3::new(p.x, p.y, p.z)),
                     range_m: est.range_m,
                 }))
             }

@@ -124,6 +124,9 @@ pub(crate) struct Estimate {
     pub(crate) status: EstimateStatus,
     pub(crate) goal: Option<Goal>,
     pub(crate) fused_target: Option<Vector3<f64>>,
+    /// This frame's own estimate of where the box's object stands (`odom`):
+    /// none without valid depth in the box.
+    pub(crate) observed: Option<Vector3<f64>>,
     pub(crate) range_m: f64,
 }
 

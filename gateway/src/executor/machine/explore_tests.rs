@@ -212,7 +212,9 @@ fn a_search_leg_heads_for_the_last_unconfirmed_sighting() {
     let p = ExecutorParams { unseen_frames: 2, scan_turns: 3, look_frames: 1, search_legs: 1, ..Default::default() };
     let glimpse = Vector3::new(8.0 * FRAC_PI_6.cos(), 8.0 * FRAC_PI_6.sin(), 0.5);
     let mut m = mission(vec![find(56, "chair")]);
-    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), tally(move |_| glimpse, 0, vec![chair(70.0, 95.0)]));
+    // A box 10 px tall: a chair's 0.9 m at that range (fy 80).
+    let far_chair = Detection { y_min: 55.0, y_max: 65.0, ..chair(70.0, 95.0) };
+    cycle(&mut m, &p, at(0.0, 0.0, 0.0, 0.0), tally(move |_| glimpse, 0, vec![far_chair]));
     let legs: Vec<MoveQuery> =
         search_until_asked(&mut m, &p, 1, 300, |_, h| h).into_iter().filter(|q| q.f_dist > 0.0).collect();
     assert_eq!(legs.len(), 1, "{legs:?}");

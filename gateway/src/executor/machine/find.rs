@@ -8,6 +8,7 @@ use vlnav_geometry::camera::Projector;
 use vlnav_geometry::wrap_angle;
 
 use super::landmarks::remember_landmarks;
+use super::size::fits_class;
 use super::{Explore, Mission, Next, OFF_COURSE_RAD, Pending, REFERENCE_PLACES, REFERENCE_SAME_M, Request, bearing};
 use crate::config::ExecutorParams;
 use crate::executor::model::*;
@@ -476,6 +477,17 @@ impl Mission {
     ) -> Next {
         let (stamp, pose) = (self.frame.stamp, self.frame.pose);
         let index = self.index as u32;
+        // With `size_check`: a box of a size its class cannot have at the
+        // depth measured in it is a false positive (a poster on a wall
+        // nearby, a person the detector gave another class): no sighting.
+        let frame = &self.frame;
+        let observation = observation.filter(|(b, _, _, est)| {
+            let fits = !p.size_check || est.observed.or(est.fused_target).is_none_or(|t| fits_class(frame, b, &t));
+            if !fits {
+                tracing::debug!(class = b.class_id, at = ?est.observed, height_px = b.y_max - b.y_min, "box the wrong size for its class: no sighting");
+            }
+            fits
+        });
         let Some(f) = self.find_mut() else { return self.hold() };
         if f.course_first.is_some_and(|c| wrap_angle(c - pose.theta).abs() <= OFF_COURSE_RAD / 2.0) {
             f.course_first = None;

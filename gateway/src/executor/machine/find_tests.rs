@@ -10,7 +10,13 @@ use super::*;
 /// ones without.
 fn every_other_without_depth(k: u32) -> Reply {
     if k.is_multiple_of(2) {
-        Reply::Located(Estimate { status: EstimateStatus::NoDepth, goal: None, fused_target: None, range_m: 0.0 })
+        Reply::Located(Estimate {
+            status: EstimateStatus::NoDepth,
+            goal: None,
+            fused_target: None,
+            observed: None,
+            range_m: 0.0,
+        })
     } else {
         located(Pose2::new(2.0, 0.0, 0.0))
     }
@@ -253,22 +259,17 @@ fn a_bare_majority_over_another_class_does_not_confirm_twice_as_many_sightings_d
 
 #[test]
 fn sightings_scattered_far_apart_never_confirm_a_target() {
-    // Every frame a chair box, each putting the chair 2 m from the last:
-    // false positives at random places, not one object. None counts for
-    // another's candidate, so nothing is confirmed and nothing driven to.
+    // Every frame a chair box, each putting the chair 2 m from the last
+    // (the box a chair's 0.9 m at that depth): false positives at random
+    // places, not one object. None counts for another's candidate, so
+    // nothing is confirmed and nothing driven to.
     let p = ExecutorParams::default();
     let mut m = mission(vec![find(56, "chair")]);
+    let place = |f: u32| Vector3::new(3.0 + 2.0 * f64::from(f % 5), if f.is_multiple_of(2) { 2.0 } else { -2.0 }, 0.5);
     for f in 0..20u32 {
-        let (cmd, _) = cycle(
-            &mut m,
-            &p,
-            at(f64::from(f) * 0.2, 0.0, 0.0, 0.0),
-            tally(
-                |f| Vector3::new(3.0 + 2.0 * f64::from(f % 5), if f % 2 == 0 { 2.0 } else { -2.0 }, 0.5),
-                f,
-                vec![chair(70.0, 95.0)],
-            ),
-        );
+        let h = (0.9 * 80.0 / (place(f).x - 0.3)) as f32;
+        let b = Detection { y_min: 60.0 - h / 2.0, y_max: 60.0 + h / 2.0, ..chair(70.0, 95.0) };
+        let (cmd, _) = cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), tally(place, f, vec![b]));
         assert_eq!(cmd.twist, Twist::ZERO, "frame {f}");
     }
     assert_eq!(seen(&mut m), 0);
@@ -285,6 +286,29 @@ fn sightings_scattered_far_apart_never_confirm_a_target() {
         );
     }
     assert_eq!(seen(&mut m), 1);
+}
+
+#[test]
+fn with_the_size_check_boxes_too_small_for_a_person_on_a_wall_a_metre_away_never_confirm_one() {
+    // A false positive in every frame, each on the same wall 1 m ahead and
+    // 30 px tall: 0.38 m at that depth (fy 80), no person. The same boxes
+    // 60 px tall (0.75 m, a person half hidden) are confirmed; without the
+    // check (the default), so are the small ones.
+    for (size_check, h, confirmed) in [(true, 30.0, 0), (true, 60.0, 1), (false, 30.0, 1)] {
+        let p = ExecutorParams { size_check, ..ExecutorParams::default() };
+        let mut m = mission(vec![find(0, "person")]);
+        let b = Detection { y_min: 60.0 - h / 2.0, y_max: 60.0 + h / 2.0, ..person(70.0, 90.0) };
+        for f in 0..10u32 {
+            let wall = Vector3::new(1.3, 0.1 * f64::from(f % 3), 0.6);
+            let mut answer = tally(move |_| wall, f, vec![b.clone()]);
+            // Nothing counts as a sighting: the robot goes looking.
+            cycle(&mut m, &p, at(f64::from(f) * 0.2, 0.0, 0.0, 0.0), |r| match r {
+                Request::MoveGoal(q) => Ok(Reply::Goal(goal_of(q))),
+                other => answer(other),
+            });
+        }
+        assert_eq!(seen(&mut m), confirmed, "{h} px, size check {size_check}");
+    }
 }
 
 fn table(x_min: f32, x_max: f32) -> Detection {
@@ -415,6 +439,7 @@ fn sees_driving(
                     landmark: None,
                 }),
                 fused_target: Some(chair_at),
+                observed: Some(chair_at),
                 range_m: chair_at.x,
             }),
             Request::MoveGoal(q) => Reply::Goal(goal_of(q)),

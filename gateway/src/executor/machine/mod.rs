@@ -89,6 +89,7 @@ mod find;
 mod follow;
 mod landmarks;
 mod metrics;
+mod size;
 #[cfg(test)]
 mod test_support;
 

@@ -95,6 +95,7 @@ pub(super) fn located(goal: Pose2) -> Reply {
             landmark: None,
         }),
         fused_target: Some(Vector3::new(goal.x + 1.5, goal.y, 0.5)),
+        observed: Some(Vector3::new(goal.x + 1.5, goal.y, 0.5)),
         range_m: 3.0,
     })
 }
@@ -164,6 +165,7 @@ pub(super) fn tally(
                         landmark: None,
                     }),
                     fused_target: Some(t),
+                    observed: Some(t),
                     range_m: t.x,
                 })
             }
