@@ -4,8 +4,8 @@
 //! confirmed.
 
 use nalgebra::{Vector2, Vector3};
-use vlnav_geometry::camera::Projector;
-use vlnav_geometry::wrap_angle;
+use vlnav_geometry::camera::{Camera, Projector};
+use vlnav_geometry::{Pose2, wrap_angle};
 
 use super::landmarks::remember_landmarks;
 use super::size::fits_class;
@@ -251,13 +251,18 @@ enum TargetView {
     OutOfView,
 }
 
+/// The pixel `(u, v)` and depth at which an `odom` point is seen from
+/// `pose`, if in front of the camera.
+pub(super) fn pixel_from(camera: &Camera, pose: &Pose2, target: &Vector3<f64>) -> Option<(f64, f64, f64)> {
+    let base = pose.inverse_transform(&target.xy());
+    Projector::new(camera).pixel_of(Vector3::new(base.x, base.y, target.z))
+}
+
 /// `None` when the frame has no camera model to predict with.
 fn target_view(frame: &Frame, target: &Vector3<f64>) -> Option<TargetView> {
     let camera = frame.camera.as_ref()?;
     let (w, h) = (camera.width as f64, camera.height as f64);
-    let base = frame.pose.inverse_transform(&Vector2::new(target.x, target.y));
-    let pixel = Projector::new(camera).pixel_of(Vector3::new(base.x, base.y, target.z));
-    Some(match pixel {
+    Some(match pixel_from(camera, &frame.pose, target) {
         Some((u, v, _)) if (0.0..w).contains(&u) && (0.0..h).contains(&v) => TargetView::At(u as f32, v as f32),
         _ => TargetView::OutOfView,
     })

@@ -6,7 +6,8 @@
 //! docs/evaluation.md, "Generated worlds", for what it measured).
 
 use nalgebra::Vector3;
-use vlnav_geometry::camera::Projector;
+
+use super::find::pixel_from;
 
 use crate::executor::model::{Detection, Frame};
 
@@ -55,10 +56,7 @@ const EDGE_PX: f32 = 1.0;
 pub(super) fn fits_class(frame: &Frame, b: &Detection, target: &Vector3<f64>) -> bool {
     let Some(&(_, smallest, largest)) = HEIGHTS.iter().find(|(c, _, _)| *c == b.class_id) else { return true };
     let Some(camera) = frame.camera.as_ref() else { return true };
-    let base = frame.pose.inverse_transform(&target.xy());
-    let Some((_, _, depth)) = Projector::new(camera).pixel_of(Vector3::new(base.x, base.y, target.z)) else {
-        return true;
-    };
+    let Some((_, _, depth)) = pixel_from(camera, &frame.pose, target) else { return true };
     let height = f64::from(b.y_max - b.y_min) * depth / camera.intrinsics.fy;
     let cut = b.y_min <= EDGE_PX || b.y_max >= camera.height as f32 - EDGE_PX;
     height <= MAX_SLACK * largest && (cut || height >= MIN_SHOWN * smallest)
