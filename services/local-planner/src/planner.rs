@@ -72,7 +72,7 @@ pub struct PlannerParams {
     /// Metric clearance of the robot's centre line, m.
     pub clearance_m: f64,
     /// The clearance of the narrow-passage tables (`Planner::narrow`;
-    /// [`NARROW_CLEARANCE_M`] where `--local-planner-narrow` asks for them),
+    /// [`NARROW_CLEARANCE_M`] with `--local-planner-narrow`, the default),
     /// m; 0 or not below `clearance_m`: none.
     pub narrow_clearance_m: f64,
     /// Library rotations, rad (authors: 9 within the camera's ±40°).

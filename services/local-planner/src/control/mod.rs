@@ -18,7 +18,7 @@
 //! | `behind.rs` | walkers who alone turn the paths far off are followed, not gone round |
 //! | `walkers.rs` | no command closes on a walking person; a way blocked near a person is WAITING |
 //! | `giveway.rs` | a robot that waited for a person backs away along its own trail |
-//! | `narrow.rs` | a stuck step plans through narrow passages, slowly (`--local-planner-narrow`, off by default) |
+//! | `narrow.rs` | a stuck step plans through narrow passages, slowly (`--local-planner-narrow`, on by default) |
 //! | `detour.rs` | a way beyond the paths' reach, searched on a rolling grid when stuck |
 //! | `frontier.rs` | what the depth has seen lately, and the nearest edge of what it has not (`--local-planner-frontier`, off by default) |
 //! | `progress.rs` | the no-progress watchdog |
@@ -157,6 +157,9 @@ pub struct RobotState {
     /// Where (`odom`) this goal began planning through a narrow passage
     /// (`narrow.rs`).
     narrow_from: Option<Vector2<f64>>,
+    /// Best distance to this goal, turns in place included, and when it
+    /// was reached (`narrow.rs`, `RobotState::circling`).
+    circling: Option<(f64, f64)>,
     /// What the depth has seen lately, for the frontier (`frontier.rs`).
     seen: SeenGrid,
 }
@@ -246,7 +249,8 @@ impl RobotState {
             (out.distance_to_goal, out.heading_error) = (left, aim_bearing);
         }
         let stuck = matches!(out.status, StepStatus::Blocked | StepStatus::NoProgress);
-        if stuck {
+        let circling = self.circling(&input, out.distance_to_goal, p);
+        if stuck || circling {
             self.stuck_at(&input, p);
         }
         // A waypoint reached (as close as the body fits) is no goal reached.
@@ -300,6 +304,7 @@ impl RobotState {
             self.detour = None;
             self.back_out = None;
             self.narrow_from = None;
+            self.circling = None;
             self.progress = None;
             self.rotating = false;
             self.aligned = false;

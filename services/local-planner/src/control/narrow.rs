@@ -22,6 +22,18 @@
 //! is passing closer to people. The guard, the people rules and the
 //! watchdog are unchanged.
 //!
+//! Before a doorway too narrow for the usual paths the step is seldom
+//! reported stuck: the follower takes the free paths off to the side and
+//! turns toward them on the spot until the goal is `rerotate_threshold`
+//! off the heading, the turn in place (`rotate.rs`) turns back, and every
+//! turn restarts the watchdog's window (`progress.rs`), so neither BLOCKED
+//! nor NO_PROGRESS comes and the executor asks "I am not getting closer"
+//! after its own timeout (development set, `home-25`, `home-5`: 15–40 s
+//! of turning back and forth 1.5 m before the door). So a goal that came
+//! no nearer by `CIRCLING_M` within `CIRCLING_S`, counting every frame,
+//! turns in place included, is stuck here too
+//! (`RobotState::circling`).
+//!
 //! Passing so close, the remembered cells' own error — the odometry's slip
 //! since they were seen, half a voxel — is most of the margin left, and
 //! where the robot then turns, it turned its rear into the jambs it had
@@ -57,7 +69,36 @@ pub(super) const REAR_BAND_M: f64 = 0.2;
 /// passage, m, on top of `FollowParams::memory_drift_m`.
 pub(super) const NARROW_SWEEP_M: f64 = 0.05;
 
+/// How long a goal may come no nearer by `CIRCLING_M`, every frame counted,
+/// before it counts as stuck for the narrow passage, s: longer than the
+/// watchdog's window (5 s) and than a half turn with its sweep checks.
+pub(super) const CIRCLING_S: f64 = 8.0;
+
+/// How much nearer the goal must come within `CIRCLING_S`, m.
+pub(super) const CIRCLING_M: f64 = 0.3;
+
 impl RobotState {
+    /// Whether this goal, `distance` m away now, came no nearer by
+    /// `CIRCLING_M` within `CIRCLING_S` of sensor time, turns in place
+    /// included (see the module docs); the window then restarts. Only with
+    /// `FollowParams::narrow`, which it serves.
+    pub(super) fn circling(&mut self, input: &StepInput<'_>, distance: f64, p: &FollowParams) -> bool {
+        if !p.narrow {
+            return false;
+        }
+        let expired = match self.circling {
+            Some((best, since)) if distance > best - CIRCLING_M => {
+                if input.stamp - since < CIRCLING_S {
+                    return false;
+                }
+                true
+            }
+            _ => false,
+        };
+        self.circling = Some((distance, input.stamp));
+        expired
+    }
+
     /// `w` (rad/s), or 0 where it would swing the rear toward a cell beside
     /// it: a turn to the right (ω < 0) swings the rear to the left. Only in
     /// a narrow passage (`narrow`: `RobotState::narrow` this frame).
@@ -109,6 +150,7 @@ mod tests {
     use super::super::sweep::Sweep;
     use super::super::test_support::{drive_to, narrow_planner, planner, turn_in_place_to, view_ahead, with_cells};
     use super::super::{FollowParams, RobotState, StepStatus};
+    use super::{CIRCLING_M, CIRCLING_S};
     use crate::cloud::{Cell, ObstacleCloud};
 
     /// A wall across the way 1.5 m ahead, of cells 0.05 m apart, with no
@@ -145,7 +187,7 @@ mod tests {
         let mut state = RobotState::default();
         let input = drive_to(0.0, Pose2::new(0.0, 0.0, 0.0), 4.0, &cloud, view_ahead());
         assert!(!state.narrow(&input, &p));
-        // Off unless asked for (`--local-planner-narrow`).
+        // Off where the settings turn it off (`--local-planner-narrow false`).
         state.stuck_at(&input, &FollowParams::default());
         assert!(!state.narrow(&input, &p));
         state.stuck_at(&input, &p);
@@ -176,6 +218,46 @@ mod tests {
             state.people.update(-0.2 * f64::from(4 - k), &[Some(Vector2::new(1.2, 0.5))], &p.people);
         }
         assert!(!state.narrow(&next, &p));
+    }
+
+    #[test]
+    fn a_goal_that_comes_no_nearer_while_the_robot_turns_back_and_forth_is_stuck() {
+        let p = FollowParams { narrow: true, ..FollowParams::default() };
+        let cloud = door(0.8);
+        // Turning back and forth 2 m before the door, 0.2 s frames: the
+        // distance never drops by CIRCLING_M, so every CIRCLING_S of
+        // sensor time counts once as stuck, then the window restarts.
+        let mut state = RobotState::default();
+        let mut stuck = Vec::new();
+        for k in 0..=100 {
+            let stamp = 0.2 * f64::from(k);
+            let input = drive_to(stamp, Pose2::new(0.0, 0.0, 0.3 * (0.5 * stamp).sin()), 4.0, &cloud, view_ahead());
+            if state.circling(&input, 4.0 - 0.01 * stamp, &p) {
+                stuck.push(stamp);
+            }
+        }
+        assert_eq!(stuck.len(), 2, "{stuck:?}");
+        assert!((stuck[0] - CIRCLING_S).abs() < 1e-9 && (stuck[1] - 2.0 * CIRCLING_S).abs() < 1e-9, "{stuck:?}");
+        // Closing in by CIRCLING_M within each window, however slowly: never.
+        let mut closing = RobotState::default();
+        for k in 0..=100 {
+            let stamp = 0.2 * f64::from(k);
+            let input = drive_to(stamp, Pose2::new(0.0, 0.0, 0.0), 4.0, &cloud, view_ahead());
+            let distance = 4.0 - 1.01 * CIRCLING_M * stamp / CIRCLING_S;
+            assert!(!closing.circling(&input, distance, &p), "at {stamp} s");
+        }
+        // Without narrow passages (the default) nothing is watched.
+        let mut off = RobotState::default();
+        for k in 0..=100 {
+            let input = drive_to(0.2 * f64::from(k), Pose2::new(0.0, 0.0, 0.0), 4.0, &cloud, view_ahead());
+            assert!(!off.circling(&input, 4.0, &FollowParams::default()));
+        }
+        assert_eq!(off.circling, None);
+        // Stuck this way with nobody near, the goal plans through narrow passages.
+        let input = drive_to(20.2, Pose2::new(0.0, 0.0, 0.0), 4.0, &cloud, view_ahead());
+        assert!(!state.narrow(&input, &p));
+        state.stuck_at(&input, &p);
+        assert!(state.narrow(&input, &p));
     }
 
     #[test]

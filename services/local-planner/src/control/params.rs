@@ -88,7 +88,9 @@ pub struct FollowParams {
     pub frontier: bool,
     /// A stuck step plans through narrow passages with the planner's
     /// narrow tables (`narrow.rs`; the planner needs them:
-    /// `PlannerParams::narrow_clearance_m`).
+    /// `PlannerParams::narrow_clearance_m`). Off here, so that each
+    /// behaviour's tests see the usual paths; the service turns it on
+    /// (`Options::narrow`, `--local-planner-narrow`).
     pub narrow: bool,
 }
 
