@@ -45,6 +45,7 @@
 //! is past — and a turn on the spot keeps remembered cells
 //! `NARROW_SWEEP_M` farther out of its sweep disc (`sweep.rs`).
 
+use super::progress::window_ran_out;
 use super::{FollowParams, RobotState, StepInput};
 
 /// The top speed while planning with the narrow clearance, m/s: slow
@@ -86,17 +87,7 @@ impl RobotState {
         if !p.narrow {
             return false;
         }
-        let expired = match self.circling {
-            Some((best, since)) if distance > best - CIRCLING_M => {
-                if input.stamp - since < CIRCLING_S {
-                    return false;
-                }
-                true
-            }
-            _ => false,
-        };
-        self.circling = Some((distance, input.stamp));
-        expired
+        window_ran_out(&mut self.circling, distance, input.stamp, CIRCLING_M, CIRCLING_S)
     }
 
     /// `w` (rad/s), or 0 where it would swing the rear toward a cell beside

@@ -20,22 +20,41 @@ impl RobotState {
         v: f64,
         p: &FollowParams,
     ) -> StepOutput {
-        match self.progress {
-            None => self.progress = Some((distance, stamp)),
-            Some((best, _)) if distance <= best - p.progress_distance => self.progress = Some((distance, stamp)),
-            Some((_, since)) if stamp - since >= p.progress_window_s => {
-                self.progress = Some((distance, stamp));
-                self.last_speed = 0.0;
-                out.linear = 0.0;
-                out.angular = 0.0;
-                out.status = StepStatus::NoProgress;
-                return out;
-            }
-            Some(_) => {}
+        if window_ran_out(&mut self.progress, distance, stamp, p.progress_distance, p.progress_window_s) {
+            self.last_speed = 0.0;
+            out.linear = 0.0;
+            out.angular = 0.0;
+            out.status = StepStatus::NoProgress;
+            return out;
         }
         self.last_speed = v;
         out
     }
+}
+
+/// A window over the distance to a goal, `(best, since)`: whether `distance`
+/// m at sensor time `stamp` ends a window of `window_s` in which the
+/// distance never dropped by `drop_m` below the window's start. A drop, or
+/// a window that ran out, starts the next window here. The watchdog above
+/// and the narrow passage's circling (`narrow.rs`) each keep one.
+pub(super) fn window_ran_out(
+    window: &mut Option<(f64, f64)>,
+    distance: f64,
+    stamp: f64,
+    drop_m: f64,
+    window_s: f64,
+) -> bool {
+    let ran_out = match *window {
+        Some((best, since)) if distance > best - drop_m => {
+            if stamp - since < window_s {
+                return false;
+            }
+            true
+        }
+        _ => false,
+    };
+    *window = Some((distance, stamp));
+    ran_out
 }
 
 #[cfg(test)]
