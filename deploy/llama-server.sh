@@ -33,8 +33,13 @@ src=$(dirname "$(find "$work" -path '*llama.cpp/CMakeLists.txt' -print -quit)")
 [ -n "$src" ] && [ -f "$src/CMakeLists.txt" ] || { echo "llama-server: llama.cpp sources not found in $sdist" >&2; exit 1; }
 build="$out/build"
 mkdir -p "$build"
+# Portable x86-64-v3 kernels (AVX2, FMA, F16C), not -march=native: built
+# natively on a CPU with AMX (amx_tile, amx_int8), the server crashed at
+# every start (SIGSEGV in ggml_backend_amx_mul_mat while it warmed up), and
+# the planner's test of the OpenAI-compatible backend with it.
 "$venv/bin/cmake" -S "$src" -B "$build" -DCMAKE_BUILD_TYPE=Release -DLLAMA_CURL=OFF \
-  -DLLAMA_BUILD_TESTS=OFF -DLLAMA_BUILD_EXAMPLES=OFF -DBUILD_SHARED_LIBS=OFF >/dev/null
+  -DLLAMA_BUILD_TESTS=OFF -DLLAMA_BUILD_EXAMPLES=OFF -DBUILD_SHARED_LIBS=OFF \
+  -DGGML_NATIVE=OFF -DGGML_AVX=ON -DGGML_AVX2=ON -DGGML_FMA=ON -DGGML_F16C=ON >/dev/null
 "$venv/bin/cmake" --build "$build" --target llama-server -j"${JOBS:-2}"
 mkdir -p "$out/bin"
 cp "$build/bin/llama-server" "$bin"
