@@ -102,6 +102,19 @@ pub struct PeopleParams {
     /// pace they are elsewhere after a few seconds. A place the camera
     /// looks at again and finds empty is forgotten at once.
     pub slow_recall_s: f64,
+    /// A person last seen walking on a course that runs into the robot's
+    /// body (within `radius_m` of it) is held, out of view, beside the body
+    /// where that course passes nearest: people who meet a robot step
+    /// aside and stand or squeeze past there (a 2.3 m corridor with four
+    /// people pacing: one who passed the camera's edge stood 0.4 m from the
+    /// robot's side for 15 s, and a turn in place swung the rear corner
+    /// into them). Held within `beside_m` of the robot's centre — where the
+    /// corners' swing (0.6 m), their radius and `touch_m` reach — they
+    /// count for slowing and the touch rule for up to `beside_s` after the
+    /// sighting instead of `slow_recall_s`, unless the camera looks there
+    /// and finds no one (docs/design.md §4, "People in the way").
+    pub beside_m: f64,
+    pub beside_s: f64,
     /// No command may bring the body nearer a person than this clearance
     /// (and nearer than it is), m: the robot stops for them (WAITING).
     pub touch_m: f64,
@@ -135,6 +148,8 @@ impl Default for PeopleParams {
             slow_mps: 0.3,
             slow_per_m: 0.7,
             slow_recall_s: 4.0,
+            beside_m: 1.2,
+            beside_s: 30.0,
             touch_m: 0.2,
             swerve_max_rad: 0.5,
         }
@@ -197,9 +212,51 @@ impl Track {
 #[derive(Clone, Debug, Default)]
 pub struct Tracker {
     tracks: Vec<Track>,
-    /// Where confirmed people were last seen, `odom`, with the stamp, for
-    /// `PeopleParams::recall_s`: one per `RECALL_CELL_M` cell, the newest.
-    recalled: Vec<(f64, Vector2<f64>)>,
+    /// Where confirmed people were last seen, `odom`, for
+    /// `PeopleParams::recall_s` (`beside_s` where held beside the robot):
+    /// one per `RECALL_CELL_M` cell, the newest.
+    recalled: Vec<Recalled>,
+}
+
+/// A confirmed person's sighting, kept after they left the view.
+#[derive(Clone, Copy, Debug)]
+struct Recalled {
+    stamp: f64,
+    at: Vector2<f64>,
+    /// Their velocity where they walked then, else zero, m/s (`odom`).
+    velocity: Vector2<f64>,
+}
+
+impl Recalled {
+    /// Where someone whose course since the sighting runs into the robot's
+    /// body (`pose`, `odom`; `half`: its half-length and half-width, m),
+    /// them being `radius` m round, is held (`odom`): their course's point
+    /// nearest the robot's centre (walked at most for the time since the
+    /// sighting), moved out to `radius` from the body — beside it, where
+    /// people who meet a robot and step aside stand or squeeze past.
+    /// `None` for someone standing, walking away, or passing with room.
+    fn held(&self, stamp: f64, pose: &Pose2, half: &Vector2<f64>, radius: f64) -> Option<Vector2<f64>> {
+        let speed2 = self.velocity.norm_squared();
+        if speed2 < 1e-9 {
+            return None;
+        }
+        let nearest = (pose.position() - self.at).dot(&self.velocity) / speed2;
+        let q = self.at + self.velocity * nearest.clamp(0.0, (stamp - self.stamp).max(0.0));
+        let b = pose.inverse_transform(&q);
+        let on_body = Vector2::new(b.x.clamp(-half.x, half.x), b.y.clamp(-half.y, half.y));
+        let out = b - on_body;
+        if out.norm() >= radius {
+            return None;
+        }
+        let beside = if out.norm() > 1e-6 {
+            on_body + out * (radius / out.norm())
+        } else if half.x - b.x.abs() < half.y - b.y.abs() {
+            Vector2::new((half.x + radius).copysign(b.x), b.y)
+        } else {
+            Vector2::new(b.x, (half.y + radius).copysign(b.y))
+        };
+        Some(pose.transform(&beside))
+    }
 }
 
 /// Sightings recalled closer together than this are one, m.
@@ -251,11 +308,13 @@ impl Tracker {
                 t.walked = Some(stamp);
             }
         }
-        self.recalled.retain(|(s, _)| stamp - *s <= p.recall_s && *s <= stamp);
+        let kept_s = p.recall_s.max(p.beside_s);
+        self.recalled.retain(|r| stamp - r.stamp <= kept_s && r.stamp <= stamp);
         for t in self.tracks.iter().filter(|t| t.confirmed(p) && t.last().0 == stamp) {
             let at = t.last().1;
-            self.recalled.retain(|(_, q)| (q - at).norm() >= RECALL_CELL_M);
-            self.recalled.push((stamp, at));
+            let velocity = t.velocity(p).filter(|_| t.walker(stamp, p)).unwrap_or_else(Vector2::zeros);
+            self.recalled.retain(|r| (r.at - at).norm() >= RECALL_CELL_M);
+            self.recalled.push(Recalled { stamp, at, velocity });
         }
         walking
     }
@@ -265,24 +324,41 @@ impl Tracker {
     /// expected there (`people_at`).
     pub fn person_near(&self, stamp: f64, pose: &Pose2, range: f64, p: &PeopleParams) -> bool {
         let recalled =
-            self.recalled.iter().any(|(s, q)| stamp - s <= p.recall_s && (q - pose.position()).norm() < range);
+            self.recalled.iter().any(|r| stamp - r.stamp <= p.recall_s && (r.at - pose.position()).norm() < range);
         recalled || self.people_at(stamp, pose, p).iter().any(|q| q.norm() < range)
     }
 
     /// Forgets the recalled places not sighted at `stamp` for which
     /// `looked_empty` holds (`odom`): the camera looked there this frame and
-    /// no person stands there any more.
-    pub fn forget_looked_at(&mut self, stamp: f64, looked_empty: impl Fn(&Vector2<f64>) -> bool) {
-        self.recalled.retain(|(s, q)| *s == stamp || !looked_empty(q));
+    /// no person stands there any more. Someone held where they met the
+    /// robot (`pose`, its half-extents `half`) is looked for there.
+    pub fn forget_looked_at(
+        &mut self,
+        stamp: f64,
+        pose: &Pose2,
+        half: &Vector2<f64>,
+        p: &PeopleParams,
+        looked_empty: impl Fn(&Vector2<f64>) -> bool,
+    ) {
+        self.recalled
+            .retain(|r| r.stamp == stamp || !looked_empty(&r.held(stamp, pose, half, p.radius_m).unwrap_or(r.at)));
     }
 
-    /// Where people are or may be at `stamp`, in `pose`'s frame: everyone
-    /// tracked (`people_at`) and the places seen within `slow_recall_s`.
-    pub fn people_around(&self, stamp: f64, pose: &Pose2, p: &PeopleParams) -> Vec<Vector2<f64>> {
+    /// Where people are or may be at `stamp`, in `pose`'s frame (the robot's
+    /// half-length and half-width `half`): everyone tracked (`people_at`),
+    /// the places seen within `slow_recall_s`, and those held beside the
+    /// robot within `beside_m` for `beside_s` (`Recalled::held`).
+    pub fn people_around(&self, stamp: f64, pose: &Pose2, half: &Vector2<f64>, p: &PeopleParams) -> Vec<Vector2<f64>> {
+        let robot = pose.position();
         let mut all = self.people_at(stamp, pose, p);
-        all.extend(
-            self.recalled.iter().filter(|(s, _)| stamp - s <= p.slow_recall_s).map(|(_, q)| pose.inverse_transform(q)),
-        );
+        all.extend(self.recalled.iter().filter_map(|r| {
+            let age = stamp - r.stamp;
+            match r.held(stamp, pose, half, p.radius_m) {
+                Some(held) => ((held - robot).norm() <= p.beside_m && age <= p.beside_s).then_some(held),
+                None => (age <= p.slow_recall_s).then_some(r.at),
+            }
+            .map(|q| pose.inverse_transform(&q))
+        }));
         all
     }
 
@@ -332,8 +408,11 @@ impl Tracker {
                 *at = f(at);
             }
         }
-        for (_, at) in &mut self.recalled {
-            *at = f(at);
+        for r in &mut self.recalled {
+            // A velocity is a difference of places: moved as one.
+            let (at, ahead) = (f(&r.at), f(&(r.at + r.velocity)));
+            r.velocity = ahead - at;
+            r.at = at;
         }
     }
 
@@ -357,6 +436,11 @@ mod tests {
 
     fn p() -> PeopleParams {
         PeopleParams::default()
+    }
+
+    /// The Husky's half-length and half-width, m.
+    fn half() -> Vector2<f64> {
+        Vector2::new(0.495, 0.335)
     }
 
     #[test]
@@ -452,13 +536,58 @@ mod tests {
             t.update(0.2 * f64::from(k), &[Some(Vector2::new(1.0, 0.5))], &pp);
         }
         // Seen this frame: kept whatever the check says.
-        t.forget_looked_at(0.8, |_| true);
+        t.forget_looked_at(0.8, &pose, &half(), &pp, |_| true);
         assert!(t.person_near(0.8, &pose, pp.yield_m, &pp));
         t.update(1.0, &[], &pp);
         // Not looked at: kept.
-        t.forget_looked_at(1.0, |_| false);
-        assert_eq!(t.people_around(1.0, &pose, &pp).len(), 2, "the track and its recalled place");
-        t.forget_looked_at(1.0, |_| true);
-        assert_eq!(t.people_around(1.0, &pose, &pp).len(), 1, "the track only");
+        t.forget_looked_at(1.0, &pose, &half(), &pp, |_| false);
+        assert_eq!(t.people_around(1.0, &pose, &half(), &pp).len(), 2, "the track and its recalled place");
+        t.forget_looked_at(1.0, &pose, &half(), &pp, |_| true);
+        assert_eq!(t.people_around(1.0, &pose, &half(), &pp).len(), 1, "the track only");
+    }
+
+    #[test]
+    fn a_walker_whose_course_runs_into_the_robot_is_held_beside_it() {
+        let (pp, pose) = (p(), Pose2::new(0.0, 0.0, 0.0));
+        let walk = |y: f64| {
+            let mut t = Tracker::default();
+            // Coming towards the robot at 1 m/s, last seen 1.2 m ahead at
+            // the camera's edge, then unseen for 12 s.
+            for k in 0..5 {
+                let s = 0.2 * f64::from(k);
+                t.update(s, &[Some(Vector2::new(2.0 - s, y))], &pp);
+            }
+            for k in 5..=60 {
+                t.update(0.2 * f64::from(k), &[], &pp);
+            }
+            t
+        };
+        // 0.55 m to the right of the centre line: within their radius of
+        // the body. Held beside it where the course passes nearest, not
+        // 11 m behind; kept when the camera finds where they were last
+        // seen empty; gone after beside_s.
+        let mut met = walk(-0.55);
+        let around = met.people_around(12.0, &pose, &half(), &pp);
+        assert_eq!(around.len(), 1, "{around:?}");
+        assert!((around[0] - Vector2::new(0.0, -0.635)).norm() < 1e-6, "{around:?}");
+        met.forget_looked_at(12.0, &pose, &half(), &pp, |q| q.x > 0.5);
+        assert_eq!(met.people_around(12.0, &pose, &half(), &pp).len(), 1);
+        assert!(met.people_around(pp.beside_s + 1.0, &pose, &half(), &pp).is_empty());
+        // Looked at where held and nobody there: forgotten.
+        met.forget_looked_at(12.0, &pose, &half(), &pp, |q| q.x.abs() < 0.1);
+        assert!(met.people_around(12.0, &pose, &half(), &pp).is_empty());
+        // 0.8 m to the right: they pass with room, and count only where
+        // last seen, for slow_recall_s.
+        let passed = walk(-0.8);
+        assert!(passed.people_around(12.0, &pose, &half(), &pp).is_empty());
+        // Someone walking away is not held.
+        let mut away = Tracker::default();
+        for k in 0..5 {
+            let s = 0.2 * f64::from(k);
+            away.update(s, &[Some(Vector2::new(1.0 + s, -0.5))], &pp);
+        }
+        away.update(1.2, &[], &pp);
+        away.forget_looked_at(1.2, &pose, &half(), &pp, |q| q.x > 0.5);
+        assert_eq!(away.people_around(1.2, &pose, &half(), &pp).len(), 1, "the track only, carried on");
     }
 }

@@ -69,7 +69,8 @@ impl RobotState {
         }
         let corner = p.half_length_m.hypot(p.half_width_m);
         let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| footprint_gap(q, x, y, th, p) - pp.radius_m;
-        let people = self.people.people_around(input.stamp, &input.pose, pp);
+        let half = Vector2::new(p.half_length_m, p.half_width_m);
+        let people = self.people.people_around(input.stamp, &input.pose, &half, pp);
         let mut scale: f64 = 1.0;
         for q in &people {
             let cap = pp.slow_mps + pp.slow_per_m * (gap(q, 0.0, 0.0, 0.0) - pp.slow_gap_m).max(0.0);
@@ -209,27 +210,47 @@ mod tests {
     fn a_person_out_of_view_slows_the_robot_until_recall_runs_out_or_the_camera_looks() {
         let p = FollowParams::default();
         let empty = ObstacleCloud::default();
-        let at = Vector2::new(0.2, -0.7);
-        let mut state = saw(at, 0.0, &p);
-        // Unseen since (out of view beside the robot): still slowed after
-        // the track is dropped (keep_s), no more after slow_recall_s.
-        for k in 1..=15 {
-            state.people.update(0.2 * f64::from(k), &[], &p.people);
-        }
         let input = |stamp: f64| {
             let mut i = turn_in_place_to(1.0, &empty);
             i.stamp = stamp;
             i
         };
+        let unseen = |state: &mut RobotState, from: f64, until: f64| {
+            for k in (from / 0.2).round() as i32 + 1..=(until / 0.2).round() as i32 {
+                state.people.update(0.2 * f64::from(k), &[], &p.people);
+            }
+        };
+        // Standing beside the robot: still slowed after the track is
+        // dropped (keep_s), no more after slow_recall_s.
+        let at = Vector2::new(0.2, -0.7);
+        let mut state = saw(at, 0.0, &p);
+        unseen(&mut state, 0.0, 3.0);
         assert!(state.people.people_at(3.0, &input(3.0).pose, &p.people).is_empty());
         assert!(state.slow_near_people(&input(3.0), 0.0, 1.5, &p).w < 1.0);
         assert_eq!(state.slow_near_people(&input(p.people.slow_recall_s + 0.1), 0.0, 1.5, &p).w, 1.5);
+        // Last seen at the camera's edge walking at 0.6 m/s on a course into
+        // the robot's right side: held beside its middle for beside_s,
+        // where a turn either way brings the body nearer; driving on does
+        // not.
+        let mut met = RobotState::default();
+        for k in 0..5 {
+            let s = 0.2 * f64::from(k);
+            met.people.update(s, &[Some(Vector2::new(1.6 - 0.6 * s, -0.55))], &p.people);
+        }
+        unseen(&mut met, 0.8, 10.0);
+        assert!(met.slow_near_people(&input(10.0), 0.0, 1.5, &p).touches);
+        assert!(met.slow_near_people(&input(10.0), 0.0, -1.5, &p).touches);
+        let on = met.slow_near_people(&input(10.0), 0.5, 0.0, &p);
+        assert!(!on.touches && on.v <= p.people.slow_mps + 1e-9, "{on:?}");
+        met.people.update(p.people.beside_s + 1.0, &[], &p.people);
+        assert_eq!(met.slow_near_people(&input(p.people.beside_s + 1.0), 0.0, -1.5, &p).w, -1.5);
         // Looked at again (after the track went) and nobody there: the
         // recalled place is forgotten at once.
         let mut looked = saw(at, 0.0, &p);
         looked.people.update(2.5, &[], &p.people);
         assert!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).w < 1.0);
-        looked.people.forget_looked_at(2.5, |q| (q - at).norm() < 0.1);
+        let half = Vector2::new(p.half_length_m, p.half_width_m);
+        looked.people.forget_looked_at(2.5, &input(2.5).pose, &half, &p.people, |q| (q - at).norm() < 0.1);
         assert_eq!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).w, 1.5);
     }
 }
