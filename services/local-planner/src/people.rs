@@ -440,7 +440,7 @@ mod tests {
 
     /// The Husky's half-length and half-width, m.
     fn half() -> Vector2<f64> {
-        Vector2::new(0.495, 0.335)
+        crate::control::FollowParams::default().half_extents()
     }
 
     #[test]

@@ -119,7 +119,7 @@ impl RobotState {
         // A person's recalled place the camera sees again, with depth
         // reaching a body's width past it and nobody detected there, is
         // empty now.
-        let half = Vector2::new(p.half_length_m, p.half_width_m);
+        let half = p.half_extents();
         self.people.forget_looked_at(input.stamp, &input.pose, &half, &p.people, |q| {
             let b = input.pose.inverse_transform(q);
             let beyond = b * (1.0 + 2.0 * p.people.radius_m / b.norm().max(1e-6));

@@ -2,6 +2,8 @@
 //! ([`FollowParams`]): the Husky A200's limits and the tuned values each
 //! behaviour module of `control` reads.
 
+use nalgebra::Vector2;
+
 use crate::cloud::{Cell, CloudParams};
 use crate::people::PeopleParams;
 
@@ -99,6 +101,13 @@ impl FollowParams {
     /// above `obstacle_height_m` counted (`Cell::blocking`).
     pub(super) fn top_of(&self, cell: &Cell) -> f64 {
         self.obstacle_height_m + f64::from(cell.blocking) * self.voxel_m
+    }
+
+    /// Half the robot's length and width, m, as one vector (`base_link`'s x
+    /// and y): what the people tracker measures a course's gap to the body
+    /// with (`people.rs`).
+    pub fn half_extents(&self) -> Vector2<f64> {
+        Vector2::new(self.half_length_m, self.half_width_m)
     }
 }
 

@@ -69,7 +69,7 @@ impl RobotState {
         }
         let corner = p.half_length_m.hypot(p.half_width_m);
         let gap = |q: &Vector2<f64>, x: f64, y: f64, th: f64| footprint_gap(q, x, y, th, p) - pp.radius_m;
-        let half = Vector2::new(p.half_length_m, p.half_width_m);
+        let half = p.half_extents();
         let people = self.people.people_around(input.stamp, &input.pose, &half, pp);
         let mut scale: f64 = 1.0;
         for q in &people {
@@ -249,7 +249,7 @@ mod tests {
         let mut looked = saw(at, 0.0, &p);
         looked.people.update(2.5, &[], &p.people);
         assert!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).w < 1.0);
-        let half = Vector2::new(p.half_length_m, p.half_width_m);
+        let half = p.half_extents();
         looked.people.forget_looked_at(2.5, &input(2.5).pose, &half, &p.people, |q| (q - at).norm() < 0.1);
         assert_eq!(looked.slow_near_people(&input(2.5), 0.0, 1.5, &p).w, 1.5);
     }
